@@ -1,0 +1,89 @@
+"""The benchmark's family constants: limb-type vocabulary, reward, termination and reset noise.
+
+One table row per family (BENCHMARK.md, "Per-limb observation", "Reward", "Termination"); the few
+bodies whose numbers differ from their family's (termination heights that grow with leg length, and
+the five Animal-Walkers, each with its own reward and termination) are listed below it by name.
+A body's family is declared in its MJCF (``<custom><text name="swat_family" data="..."/></custom>``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from swat_jax.morphology.types import FamilySpec, ResetNoise, Reward, Termination
+
+MODULAR_LIMB_TYPES = (("torso",), ("thigh", "1"), ("leg", "shin", "2"), ("foot", "3"))
+"""T = 4 types of Hopper/Walker/Cheetah/Humanoid++; humanoid arms match none (all-zero one-hot)."""
+NERVENET_LIMB_TYPES = (("torso",), ("thigh",), ("leg",), ("foot",), ("head",), ("tail",))
+"""T = 6 types of the Animal-Walkers (NerveNet) bodies."""
+
+ALIVE_REWARD = Reward(alive_bonus=1.0, control_cost=1e-3)
+RUNNER_REWARD = Reward(alive_bonus=0.0, control_cost=0.1)
+SMALL_NOISE = ResetNoise(qpos_uniform=0.005, qvel_scale=0.005)
+CHEETAH_NOISE = ResetNoise(qpos_uniform=0.1, qvel_scale=0.1, qvel_gaussian=True)
+NEVER = Termination()
+UPRIGHT = 1.0
+"""Largest torso pitch (rad) of the upright families."""
+
+
+def _hopper(min_height: float) -> Termination:
+    return Termination(height=(min_height, math.inf), max_abs_angle=UPRIGHT, bounded_state=True)
+
+
+def _upright(low: float, high: float) -> Termination:
+    return Termination(height=(low, high), max_abs_angle=UPRIGHT)
+
+
+def _cheetah(*sites: tuple[str, float]) -> Termination:
+    return Termination(bounded_state=True, site_min_heights=(("front", 0.7), ("back", 0.7), *sites))
+
+
+FAMILIES: dict[str, FamilySpec] = {
+    spec.name: spec
+    for spec in (
+        FamilySpec("hopper", MODULAR_LIMB_TYPES, ALIVE_REWARD, _hopper(0.7), SMALL_NOISE),
+        FamilySpec("walker", MODULAR_LIMB_TYPES, ALIVE_REWARD, _upright(0.8, 2.0), SMALL_NOISE),
+        FamilySpec("cheetah", MODULAR_LIMB_TYPES, RUNNER_REWARD, NEVER, CHEETAH_NOISE),
+        FamilySpec("humanoid", MODULAR_LIMB_TYPES, ALIVE_REWARD, _upright(0.4, 2.1), SMALL_NOISE),
+        FamilySpec("nervenet", NERVENET_LIMB_TYPES, ALIVE_REWARD, _upright(0.8, 2.0), SMALL_NOISE),
+    )
+}
+"""Family defaults; a new body declaring one of these families gets exactly these constants."""
+
+BODY_OVERRIDES: dict[str, dict[str, object]] = {
+    "hopper_3": dict(termination=_hopper(0.45)),
+    "hopper_4": dict(termination=_hopper(0.6)),
+    "hopper_5": dict(termination=_hopper(0.95)),
+    **{
+        f"walker_{n}_{k}": dict(termination=_upright(0.54, 1.74)) for n in (2, 3) for k in ("main", "flipped")
+    },
+    **{f"walker_4_{k}": dict(termination=_upright(0.664, 1.864)) for k in ("main", "flipped")},
+    "nervenet_hopper": dict(
+        termination=Termination(height=(0.7, math.inf), max_abs_angle=0.2, bounded_state=True)
+    ),
+    "nervenet_ostrich": dict(
+        termination=dataclasses.replace(_upright(0.8, 2.0), site_min_heights=(("head", 1.1),))
+    ),
+    "nervenet_fullcheetah": dict(
+        reward=dataclasses.replace(RUNNER_REWARD, alive_bonus=1.0),
+        termination=_cheetah(),
+        reset_noise=CHEETAH_NOISE,
+    ),
+    "nervenet_halfcheetah": dict(
+        reward=dataclasses.replace(RUNNER_REWARD, alive_bonus=1.0),
+        termination=_cheetah(("tip", 1.2)),
+        reset_noise=CHEETAH_NOISE,
+    ),
+}
+"""Per-body differences from the family row, keyed by body name (the MJCF file's stem)."""
+
+
+def family_spec(family: str, body: str) -> FamilySpec:
+    """The constants for ``body`` of ``family``: the family row with the body's overrides applied.
+
+    Raises ValueError naming the valid families when ``family`` is unknown.
+    """
+    if family not in FAMILIES:
+        raise ValueError(f"unknown family {family!r}; valid families: {', '.join(FAMILIES)}")
+    return dataclasses.replace(FAMILIES[family], **BODY_OVERRIDES.get(body, {}))

@@ -1,0 +1,239 @@
+"""Reading one body from MJCF into an immutable ``Morphology``, with errors that say what to fix.
+
+A body file follows the benchmark's conventions: one root body under the worldbody (the torso) that
+moves on two slide joints (x, then z) and one hinge (pitch), and below it a tree of limbs, each with
+exactly one hinge joint driven by exactly one motor. The family is declared in the file:
+``<custom><text name="swat_family" data="walker"/></custom>`` (families.py lists them).
+"""
+
+from __future__ import annotations
+
+import difflib
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from swat_jax.morphology.families import FAMILIES, family_spec
+from swat_jax.morphology.paths import MORPHOLOGY_DIR
+from swat_jax.morphology.types import FamilySpec, Morphology
+
+FAMILY_TEXT = "swat_family"
+ROOT_JOINTS = (
+    (mujoco.mjtJoint.mjJNT_SLIDE, (1.0, 0.0, 0.0)),
+    (mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 0.0, 1.0)),
+    (mujoco.mjtJoint.mjJNT_HINGE, None),
+)
+"""Torso joints in order: qpos[0] = x, qpos[1] = height, qpos[2] = pitch angle."""
+
+
+class MorphologyError(ValueError):
+    """A body file that cannot be used; the message names the file, the element and the fix."""
+
+    def __init__(self, path: Path | str, problem: str):
+        super().__init__(f"{path}: {problem}")
+        self.path = Path(path)
+
+
+def benchmark_names() -> tuple[str, ...]:
+    """Names of the bodies shipped in ``morphologies/``, sorted."""
+    return tuple(sorted(p.stem for p in MORPHOLOGY_DIR.glob("*.xml")))
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """The MJCF path of a benchmark name or of a file path; raises MorphologyError if neither exists."""
+    candidate = MORPHOLOGY_DIR / f"{name_or_path}.xml"
+    if isinstance(name_or_path, str) and "/" not in name_or_path and candidate.exists():
+        return candidate
+    path = Path(name_or_path).expanduser()
+    if path.is_file():
+        return path
+    if path.suffix.lower() != ".xml" and "/" not in str(name_or_path):
+        close = difflib.get_close_matches(str(name_or_path), benchmark_names(), n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        raise MorphologyError(
+            name_or_path,
+            f"not a benchmark body and no such file.{hint} "
+            "`python -m swat_jax.morphology list` prints the benchmark's bodies.",
+        )
+    raise MorphologyError(path, "no such file; give the path of an MJCF file or a benchmark body name")
+
+
+def _check_xml(path: Path) -> ET.Element:
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as error:
+        line, column = error.position
+        raise MorphologyError(path, f"malformed XML at line {line}, column {column}: {error}") from None
+
+
+def _check_motor_targets(path: Path, root: ET.Element) -> None:
+    joints = {j.get("name") for j in root.iter("joint")}
+    for actuator in root.iter("actuator"):
+        for index, motor in enumerate(actuator):
+            target = motor.get("joint")
+            if target is not None and target not in joints:
+                raise MorphologyError(
+                    path,
+                    f"<actuator> element {index} (<{motor.tag} joint={target!r}>) drives an unknown joint; "
+                    f"joints in this file: {', '.join(sorted(n for n in joints if n))}",
+                )
+
+
+def _check_no_free_limbs(path: Path, root: ET.Element) -> None:
+    """MuJoCo refuses free joints below the top level with a generic message; say it in body terms."""
+    for torso in root.iterfind("worldbody/body"):
+        for limb in torso.iter("body"):
+            direct = [
+                *limb.findall("freejoint"),
+                *(j for j in limb.findall("joint") if j.get("type") == "free"),
+            ]
+            if limb is not torso and direct:
+                raise MorphologyError(
+                    path,
+                    f"limb <body name={limb.get('name')!r}> has a free joint; limbs below the torso need hinges",
+                )
+
+
+def _compile(path: Path) -> mujoco.MjModel:
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as error:
+        raise MorphologyError(path, f"MuJoCo cannot compile this file: {error}") from None
+
+
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str:
+    return mujoco.mj_id2name(model, obj, index) or f"#{index}"
+
+
+def _family_name(path: Path, model: mujoco.MjModel) -> str:
+    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, FAMILY_TEXT)
+    declare = f'<custom><text name="{FAMILY_TEXT}" data="FAMILY"/></custom> with FAMILY one of {", ".join(FAMILIES)}'
+    if text < 0:
+        raise MorphologyError(path, f"no family declared; add {declare}")
+    start, size = model.text_adr[text], model.text_size[text]
+    family = bytes(model.text_data[start : start + size - 1]).decode()
+    if family not in FAMILIES:
+        raise MorphologyError(
+            path, f"<text name={FAMILY_TEXT!r}> names unknown family {family!r}; use {declare}"
+        )
+    return family
+
+
+def _check_root(path: Path, model: mujoco.MjModel) -> None:
+    roots = [b for b in range(1, model.nbody) if model.body_parentid[b] == 0]
+    if not roots:
+        raise MorphologyError(path, "<worldbody> has no <body>; a body file needs one root body, the torso")
+    if len(roots) > 1:
+        names = ", ".join(_name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in roots)
+        raise MorphologyError(
+            path, f"<worldbody> has {len(roots)} root bodies ({names}); keep one, the torso"
+        )
+    torso = _name(model, mujoco.mjtObj.mjOBJ_BODY, 1)
+    joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == 1]
+    expected = "slide along x, slide along z, hinge about y (in that order)"
+    if len(joints) != len(ROOT_JOINTS):
+        raise MorphologyError(
+            path, f"torso <body name={torso!r}> has {len(joints)} joints; it needs 3: {expected}"
+        )
+    for joint, (kind, axis) in zip(joints, ROOT_JOINTS, strict=True):
+        if model.jnt_type[joint] != kind or (
+            axis is not None and not np.allclose(model.jnt_axis[joint], axis)
+        ):
+            name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+            raise MorphologyError(
+                path, f"torso joint {name!r} is not planar; the torso's joints must be {expected}"
+            )
+
+
+def _limb_joint(path: Path, model: mujoco.MjModel, body: int) -> int:
+    limb = _name(model, mujoco.mjtObj.mjOBJ_BODY, body)
+    joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == body]
+    if not joints:
+        raise MorphologyError(
+            path, f"limb <body name={limb!r}> has no joint; give it one hinge joint and a motor"
+        )
+    names = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
+    for joint, name in zip(joints, names, strict=True):
+        if model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_HINGE:
+            kind = mujoco.mjtJoint(model.jnt_type[joint]).name.removeprefix("mjJNT_").lower()
+            raise MorphologyError(
+                path,
+                f"limb <body name={limb!r}> has a {kind} joint {name!r}; limbs below the torso need hinges",
+            )
+    if len(joints) > 1:
+        raise MorphologyError(
+            path,
+            f"limb <body name={limb!r}> has {len(joints)} joints ({', '.join(names)}); a limb has one hinge",
+        )
+    return joints[0]
+
+
+def _limb_motors(path: Path, model: mujoco.MjModel, limb_joints: list[int]) -> tuple[int, ...]:
+    for actuator in range(model.nu):
+        if model.actuator_trntype[actuator] != mujoco.mjtTrn.mjTRN_JOINT:
+            name = _name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator)
+            raise MorphologyError(
+                path, f"actuator {name} does not drive a joint; every motor drives one limb joint"
+            )
+    motors = [-1]
+    for joint in limb_joints:
+        driving = [a for a in range(model.nu) if model.actuator_trnid[a, 0] == joint]
+        name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+        if len(driving) != 1:
+            raise MorphologyError(
+                path,
+                f"joint {name!r} is driven by {len(driving)} motors; every limb joint needs exactly one <motor>",
+            )
+        motors.append(driving[0])
+    return tuple(motors)
+
+
+def _limb_type(spec: FamilySpec, limb: str) -> int:
+    for index, keys in enumerate(spec.limb_type_rules):
+        if any(key in limb for key in keys):
+            return index
+    return -1
+
+
+def _joint_range(model: mujoco.MjModel, joint: int) -> tuple[float, float]:
+    low, high = np.degrees(model.jnt_range[joint])
+    return (round(float(low), 9), round(float(high), 9))
+
+
+def load(name_or_path: str | Path, *, max_limbs: int | None = None) -> Morphology:
+    """Describe one body: a benchmark name (``"walker_3_main"``) or the path of an MJCF file.
+
+    Raises ``MorphologyError`` naming the file and element when the file cannot be read, is not
+    well-formed XML, does not compile, breaks the body conventions above, or has more than
+    ``max_limbs`` limbs.
+    """
+    path = resolve(name_or_path)
+    root = _check_xml(path)
+    _check_motor_targets(path, root)
+    _check_no_free_limbs(path, root)
+    model = _compile(path)
+    family = _family_name(path, model)
+    _check_root(path, model)
+    limbs = list(range(1, model.nbody))
+    if max_limbs is not None and len(limbs) > max_limbs:
+        raise MorphologyError(
+            path, f"{len(limbs)} limbs, more than the maximum of {max_limbs}; raise max_limbs or remove limbs"
+        )
+    joints = [_limb_joint(path, model, body) for body in limbs[1:]]
+    spec = family_spec(family, path.stem)
+    names = tuple(_name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in limbs)
+    return Morphology(
+        name=path.stem,
+        path=path,
+        family=spec,
+        limb_names=names,
+        parents=tuple(int(model.body_parentid[b]) - 1 for b in limbs),
+        limb_types=tuple(_limb_type(spec, "torso" if i == 0 else n) for i, n in enumerate(names)),
+        joint_names=(None, *(_name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints)),
+        joint_ranges=(None, *(_joint_range(model, j) for j in joints)),
+        limb_motors=_limb_motors(path, model, joints),
+        timestep=float(model.opt.timestep),
+        integrator=mujoco.mjtIntegrator(model.opt.integrator).name.removeprefix("mjINT_"),
+    )

@@ -1,0 +1,6 @@
+"""Test-wide setup: the tests' own helpers (tests/reference_numbers.py) are importable."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))

@@ -1,0 +1,132 @@
+"""Compiled physical numbers of a MuJoCo model, for checking our MJCF against the benchmark's.
+
+``summarize(model)`` lists what shapes the dynamics and the observations: per limb the tree, frame,
+mass and inertia; per joint the axis, anchor, range, reference and passive parameters; per geom the
+shape, placement and contact parameters; per motor the joint, gear and control range; sites; timestep
+and integrator. Visual properties are left out.
+
+Run as a script with MuJoCo 2.3.3 (the last release that reads the reference's global coordinates)
+to regenerate ``tests/data/reference_numbers.json`` from ``../shared/reference``:
+
+    python -m venv /tmp/mj233 && /tmp/mj233/bin/pip install mujoco==2.3.3
+    /tmp/mj233/bin/python tests/reference_numbers.py ../shared/reference
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+OUTPUT = Path(__file__).parent / "data" / "reference_numbers.json"
+
+
+def _round(values, digits: int = 6) -> list[float]:
+    return [round(float(v), digits) + 0.0 for v in np.ravel(values)]
+
+
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str | None:
+    return mujoco.mj_id2name(model, obj, index)
+
+
+def summarize(model: mujoco.MjModel) -> dict:
+    """The physics-relevant numbers of a compiled model, as JSON-ready values (angles in radians)."""
+    body_name = [_name(model, mujoco.mjtObj.mjOBJ_BODY, i) for i in range(model.nbody)]
+    joint_name = [_name(model, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(model.njnt)]
+    bodies = [
+        dict(
+            name=body_name[i],
+            parent=body_name[model.body_parentid[i]],
+            pos=_round(model.body_pos[i]),
+            quat=_round(model.body_quat[i]),
+            mass=_round([model.body_mass[i]])[0],
+            inertia=_round(model.body_inertia[i]),
+            ipos=_round(model.body_ipos[i]),
+        )
+        for i in range(1, model.nbody)
+    ]
+    joints = [
+        dict(
+            name=joint_name[j],
+            body=body_name[model.jnt_bodyid[j]],
+            type=int(model.jnt_type[j]),
+            pos=_round(model.jnt_pos[j]),
+            axis=_round(model.jnt_axis[j]),
+            limited=bool(model.jnt_limited[j]),
+            range=_round(model.jnt_range[j]),
+            qpos0=_round([model.qpos0[model.jnt_qposadr[j]]])[0],
+            stiffness=_round([model.jnt_stiffness[j]])[0],
+            armature=_round([model.dof_armature[model.jnt_dofadr[j]]])[0],
+            damping=_round([model.dof_damping[model.jnt_dofadr[j]]])[0],
+            solref_limit=_round(model.jnt_solref[j]),
+            solimp_limit=_round(model.jnt_solimp[j]),
+        )
+        for j in range(model.njnt)
+    ]
+    geoms = [
+        dict(
+            body=body_name[model.geom_bodyid[g]],
+            type=int(model.geom_type[g]),
+            size=_round(model.geom_size[g]),
+            pos=_round(model.geom_pos[g]),
+            quat=_round(model.geom_quat[g]),
+            friction=_round(model.geom_friction[g]),
+            contype=int(model.geom_contype[g]),
+            conaffinity=int(model.geom_conaffinity[g]),
+            condim=int(model.geom_condim[g]),
+            margin=_round([model.geom_margin[g]])[0],
+            solref=_round(model.geom_solref[g]),
+            solimp=_round(model.geom_solimp[g]),
+        )
+        for g in range(model.ngeom)
+    ]
+    motors = [
+        dict(
+            joint=joint_name[model.actuator_trnid[a, 0]],
+            gear=_round([model.actuator_gear[a, 0]])[0],
+            ctrlrange=_round(model.actuator_ctrlrange[a]),
+            ctrllimited=bool(model.actuator_ctrllimited[a]),
+        )
+        for a in range(model.nu)
+    ]
+    sites = [
+        dict(
+            name=_name(model, mujoco.mjtObj.mjOBJ_SITE, s),
+            body=body_name[model.site_bodyid[s]],
+            pos=_round(model.site_pos[s]),
+        )
+        for s in range(model.nsite)
+    ]
+    option = dict(
+        timestep=_round([model.opt.timestep])[0],
+        integrator=int(model.opt.integrator),
+        gravity=_round(model.opt.gravity),
+    )
+    return dict(option=option, bodies=bodies, joints=joints, geoms=geoms, motors=motors, sites=sites)
+
+
+def extract(reference_dir: Path) -> dict[str, dict]:
+    """Summaries of every reference body; fixes the malformed hopper foot position on the way."""
+    summaries = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        # The reference files include ../../misc/*.xml relative to their own folder.
+        work = Path(tmp) / "reference" / "morphologies"
+        work.mkdir(parents=True)
+        shutil.copytree(reference_dir / "misc", Path(tmp) / "misc")
+        for source in sorted((reference_dir / "morphologies").glob("*.xml")):
+            text = source.read_text().replace("0.13/2", "0.065")
+            target = work / source.name
+            target.write_text(text)
+            summaries[source.stem] = summarize(mujoco.MjModel.from_xml_path(str(target)))
+    return summaries
+
+
+if __name__ == "__main__":
+    summaries = extract(Path(sys.argv[1]))
+    OUTPUT.write_text(json.dumps(summaries, indent=None, separators=(",", ":"), sort_keys=True) + "\n")
+    print(f"wrote {len(summaries)} bodies to {OUTPUT}")
