@@ -1,0 +1,242 @@
+"""Look at the benchmark's bodies and environment sets.
+
+  list    the environment sets (train and test bodies, most limbs in a set) and every benchmark body
+  show    one body's limb tree (limb type, joint range in degrees, motor), the positions of its limbs in
+          the pre-, in- and post-order of the tree (paper eq. 3) and its three limb-pair relations
+          (normalised Laplacian, shortest-path distance / limbs, personalised PageRank; paper eq. 4);
+          --json prints the same as one JSON object
+  render  a PNG picture of one body in its initial pose, seen from the side (headless rendering uses
+          MUJOCO_GL, default egl)
+
+A body is a benchmark name (see `list`) or the path of an MJCF file. Errors exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import textwrap
+from collections.abc import Sequence
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from swat_jax.morphology.encodings import (
+    RELATION_NAMES,
+    TRAVERSAL_NAMES,
+    relation_features,
+    traversal_positions,
+)
+from swat_jax.morphology.mjcf import benchmark_names, load
+from swat_jax.morphology.picture import RenderingUnavailable, render_initial_pose
+from swat_jax.morphology.sets import SETS, EnvironmentSet
+from swat_jax.morphology.types import Morphology
+
+WRAP_WIDTH = 100
+ERROR_STATUS = 2
+
+
+def limb_type_name(morphology: Morphology, limb: int) -> str:
+    """The first key of the family's rule that typed ``limb`` (e.g. "thigh"), "none" for an untyped limb."""
+    index = morphology.limb_types[limb]
+    return morphology.family.limb_type_rules[index][0] if index >= 0 else "none"
+
+
+def limb_depths(parents: Sequence[int]) -> list[int]:
+    """Depth of each limb in the tree, 0 for the torso (parents precede their children)."""
+    depths: list[int] = []
+    for parent in parents:
+        depths.append(0 if parent < 0 else depths[parent] + 1)
+    return depths
+
+
+def _wrapped(label: str, names: Sequence[str]) -> str:
+    text = " ".join(names) if names else "-"
+    return textwrap.fill(
+        text, WRAP_WIDTH, initial_indent=f"    {label}", subsequent_indent=" " * (4 + len(label))
+    )
+
+
+def _set_lines(environment_set: EnvironmentSet, limbs: dict[str, int]) -> list[str]:
+    most = max(limbs[body] for body in environment_set.split("all"))
+    return [
+        f"  {environment_set.name:<16} {environment_set.description}  (at most {most} limbs)",
+        _wrapped(f"train ({len(environment_set.train)}): ", environment_set.train),
+        _wrapped(f"test  ({len(environment_set.test)}): ", environment_set.test),
+    ]
+
+
+def list_text() -> str:
+    """The environment sets and the benchmark bodies, as printed by ``list``."""
+    bodies = {name: load(name) for name in benchmark_names()}
+    limbs = {name: body.num_limbs for name, body in bodies.items()}
+    lines = [f"Environment sets ({len(SETS)}):"]
+    for environment_set in SETS.values():
+        lines += _set_lines(environment_set, limbs)
+    width = max(map(len, bodies))
+    lines += ["", f"Benchmark bodies ({len(bodies)}):", f"  {'name':<{width}}  {'family':<10} limbs"]
+    lines += [
+        f"  {name:<{width}}  {body.family.name:<10} {body.num_limbs:>5}" for name, body in bodies.items()
+    ]
+    return "\n".join(lines)
+
+
+def _tree_lines(morphology: Morphology) -> list[str]:
+    depths = limb_depths(morphology.parents)
+    width = max(2 * d + len(n) for d, n in zip(depths, morphology.limb_names, strict=True))
+    lines = []
+    for limb, name in enumerate(morphology.limb_names):
+        label = f"{'  ' * depths[limb]}{name}"
+        head = f"  [{limb}] {label:<{width}}  type {limb_type_name(morphology, limb):<6}"
+        if morphology.parents[limb] < 0:
+            lines.append(f"{head}  root: slides along x and z, hinge for pitch")
+            continue
+        low, high = morphology.joint_ranges[limb]
+        joint = f"{morphology.joint_names[limb]} [{low:g}, {high:g}] deg"
+        lines.append(f"{head}  {joint}  motor {morphology.limb_motors[limb]}")
+    return lines
+
+
+def _table(row_labels: Sequence[str], column_labels: Sequence[str], cells: list[list[str]]) -> list[str]:
+    label_width = max(map(len, row_labels))
+    width = max(max(map(len, column_labels)), *(len(c) for row in cells for c in row))
+    header = " " * (2 + label_width) + "".join(f" {c:>{width}}" for c in column_labels)
+    rows = [
+        f"  {label:<{label_width}}" + "".join(f" {c:>{width}}" for c in row)
+        for label, row in zip(row_labels, cells, strict=True)
+    ]
+    return [header, *rows]
+
+
+def show_text(morphology: Morphology, *, reference_inorder: bool = False) -> str:
+    """The limb tree, traversal positions and relation matrices of one body, as printed by ``show``."""
+    names = morphology.limb_names
+    traversals = traversal_positions(morphology.parents, reference_inorder=reference_inorder)
+    relations = relation_features(morphology.parents)
+    inorder = "reference code's in-order" if reference_inorder else "true binary in-order"
+    lines = [
+        f"{morphology.name}: family {morphology.family.name}, {morphology.num_limbs} limbs, "
+        f"timestep {morphology.timestep:g} s x frame_skip {morphology.frame_skip}, "
+        f"integrator {morphology.integrator}",
+        f"file: {morphology.path}",
+        "",
+        "Limb tree:",
+        *_tree_lines(morphology),
+        "",
+        f"Traversal positions (left-child right-sibling binary tree, {inorder}):",
+        *_table(names, TRAVERSAL_NAMES, [[str(v) for v in row] for row in traversals]),
+    ]
+    for channel, relation in enumerate(RELATION_NAMES):
+        matrix = relations[..., channel]
+        lines += [
+            "",
+            f"Relation {relation}:",
+            *_table(names, names, [[f"{v:.3f}" for v in row] for row in matrix]),
+        ]
+    return "\n".join(lines)
+
+
+def show_json(morphology: Morphology, *, reference_inorder: bool = False) -> dict:
+    """Everything ``show`` prints, as JSON-ready values (limbs in pre-order, ranges in degrees)."""
+    traversals = traversal_positions(morphology.parents, reference_inorder=reference_inorder)
+    relations = relation_features(morphology.parents).astype(np.float64)
+    return {
+        "name": morphology.name,
+        "path": str(morphology.path),
+        "family": morphology.family.name,
+        "limbs": list(morphology.limb_names),
+        "parents": list(morphology.parents),
+        "limb_types": list(morphology.limb_types),
+        "limb_type_names": [limb_type_name(morphology, limb) for limb in range(morphology.num_limbs)],
+        "joints": list(morphology.joint_names),
+        "joint_ranges": [list(r) if r is not None else None for r in morphology.joint_ranges],
+        "motors": list(morphology.limb_motors),
+        "reference_inorder": reference_inorder,
+        "traversals": {kind: traversals[:, column].tolist() for column, kind in enumerate(TRAVERSAL_NAMES)},
+        "relations": {
+            kind: np.round(relations[..., channel], 6).tolist() for channel, kind in enumerate(RELATION_NAMES)
+        },
+        "timestep": morphology.timestep,
+        "frame_skip": morphology.frame_skip,
+        "control_dt": morphology.control_dt,
+        "integrator": morphology.integrator,
+    }
+
+
+def write_picture(body: str, output: Path, width: int, height: int) -> None:
+    """Render ``body`` in its initial pose and write it to ``output`` as PNG."""
+    iio.imwrite(output, render_initial_pose(body, width, height), extension=".png")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line parser with its three subcommands."""
+    parser = argparse.ArgumentParser(
+        prog="python -m swat_jax.morphology",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands.add_parser(
+        "list",
+        help="print the environment sets and the benchmark bodies",
+        description="Print every environment set (description, train and test bodies, most limbs in a body "
+        "of the set), then every benchmark body with its family and limb count.",
+    )
+    show = commands.add_parser(
+        "show",
+        help="print one body's limb tree, traversal positions and relation matrices",
+        description="Print one body's limb tree, the position of each limb in the pre-, in- and post-order "
+        "traversals, and the laplacian, spd and ppr relation matrices (3 decimals).",
+    )
+    show.add_argument(
+        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
+    )
+    show.add_argument(
+        "--reference-inorder",
+        action="store_true",
+        help="use the reference code's in-order: a childless limb is listed after its next sibling's subtree",
+    )
+    show.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
+    render = commands.add_parser(
+        "render",
+        help="write a PNG picture of one body in its initial pose",
+        description="Render one body in its initial pose (qpos0), seen from the side, to a PNG file. "
+        "Rendering is off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl).",
+    )
+    render.add_argument(
+        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
+    )
+    render.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
+    render.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
+    render.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> None:
+    """Carry out one parsed command, printing to stdout."""
+    if args.command == "list":
+        print(list_text())
+    elif args.command == "show" and args.json:
+        print(json.dumps(show_json(load(args.body), reference_inorder=args.reference_inorder)))
+    elif args.command == "show":
+        print(show_text(load(args.body), reference_inorder=args.reference_inorder))
+    else:
+        write_picture(args.body, args.output, args.width, args.height)
+        print(f"wrote {args.output} ({args.width} x {args.height})")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status (2 for a bad body, set, size or rendering failure)."""
+    args = build_parser().parse_args(argv)
+    try:
+        run(args)
+    except (ValueError, RenderingUnavailable, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return ERROR_STATUS
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
