@@ -170,6 +170,12 @@ def write_picture(body: str, output: Path, width: int, height: int) -> None:
     iio.imwrite(output, render_initial_pose(body, width, height), extension=".png")
 
 
+def _add_body_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command-line parser with its three subcommands."""
     parser = argparse.ArgumentParser(
@@ -190,9 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Print one body's limb tree, the position of each limb in the pre-, in- and post-order "
         "traversals, and the laplacian, spd and ppr relation matrices (3 decimals).",
     )
-    show.add_argument(
-        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
-    )
+    _add_body_argument(show)
     show.add_argument(
         "--reference-inorder",
         action="store_true",
@@ -205,9 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Render one body in its initial pose (qpos0), seen from the side, to a PNG file. "
         "Rendering is off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl).",
     )
-    render.add_argument(
-        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
-    )
+    _add_body_argument(render)
     render.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
     render.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
     render.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
