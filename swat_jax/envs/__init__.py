@@ -1,0 +1,1 @@
+"""Benchmark environments on MuJoCo MJX: observations, rewards, terminations, many bodies in one step."""
