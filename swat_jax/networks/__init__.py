@@ -1,0 +1,26 @@
+"""Per-limb policies in Flax: SWAT, AMORPHEUS and SMP actors and twin critics (paper sections 4.1-4.3)."""
+
+from swat_jax.networks.config import ARCHITECTURES, NAMED_VARIANTS, NetworkConfig, network_config
+from swat_jax.networks.policies import (
+    Actor,
+    Critic,
+    LimbNetwork,
+    Params,
+    check_structures,
+    make_actor_critic,
+    param_count,
+)
+
+__all__ = [
+    "ARCHITECTURES",
+    "NAMED_VARIANTS",
+    "Actor",
+    "Critic",
+    "LimbNetwork",
+    "NetworkConfig",
+    "Params",
+    "check_structures",
+    "make_actor_critic",
+    "network_config",
+    "param_count",
+]

@@ -1,0 +1,135 @@
+"""Frozen configuration of the per-limb policy networks and the named variants of the paper.
+
+``network_config("swat")`` is the paper's model (Table 1, sections 4.1-4.3); the ablations of
+section 5.4 (Figure 6) each change one structural-embedding field, and AMORPHEUS (Kurin et al.
+2021) is the same transformer with neither embedding. SMP (Huang et al. 2020) is the
+message-passing baseline.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES
+
+ARCHITECTURES = ("swat", "amorpheus", "smp")
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes and switches of one network; every field is checked in ``__post_init__``."""
+
+    architecture: str = "swat"
+    """"swat" (transformer with structural embeddings), "amorpheus" (the same transformer with
+    none) or "smp" (shared modular policies, two-pass message passing)."""
+    width: int = 128
+    """Transformer model width d_v: the encoded limb token (Table 1, embedding size)."""
+    heads: int = 2
+    """Attention heads (Table 1)."""
+    layers: int = 3
+    """Transformer layers (Table 1)."""
+    feedforward: int = 256
+    """Hidden width of each layer's feed-forward block (Table 1, attention hidden size)."""
+    traversals: tuple[str, ...] = TRAVERSAL_NAMES
+    """Traversals whose learned position tables make the positional embedding (section 4.1);
+    empty for no positional embedding."""
+    relations: tuple[str, ...] = RELATION_NAMES
+    """Pairwise relation features fed to g for the relational embedding (section 4.2, eq. 4);
+    empty for no relational embedding."""
+    relation_bias_in_every_layer: bool = False
+    """Add the relational bias to the logits of every layer; the reference adds it to the first only."""
+    max_traversal_positions: int = 32
+    """Rows of each traversal table: traversal positions of every body must be below this."""
+    decoder_hidden: tuple[int, ...] = ()
+    """Hidden widths of the per-limb decoder MLP (ReLU); empty is one linear map, as in AMORPHEUS."""
+    message_width: int = 32
+    """SMP: width of every message, up and down (SMP's msg_dim)."""
+    up_hidden: tuple[int, ...] = (64, 64)
+    """SMP: hidden widths of the bottom-up module (tanh)."""
+    down_hidden: tuple[int, ...] = (400, 300)
+    """SMP: hidden widths of the top-down modules, one for the output, one for the messages (ReLU)."""
+    max_children: int = 4
+    """SMP: child message slots per limb (4 is the most children of any benchmark limb)."""
+
+    def __post_init__(self) -> None:
+        if self.architecture not in ARCHITECTURES:
+            raise ValueError(f"architecture must be one of {ARCHITECTURES}, got {self.architecture!r}")
+        for name in ("width", "heads", "layers", "feedforward", "max_traversal_positions"):
+            _require_positive_int(name, getattr(self, name))
+        for name in ("message_width", "max_children"):
+            _require_positive_int(name, getattr(self, name))
+        if self.width % self.heads != 0:
+            raise ValueError(f"width ({self.width}) must be divisible by heads ({self.heads})")
+        for name in ("decoder_hidden", "up_hidden", "down_hidden"):
+            sizes = _as_tuple(name, getattr(self, name))
+            for size in sizes:
+                _require_positive_int(f"every entry of {name}", size)
+            object.__setattr__(self, name, sizes)
+        if not self.up_hidden:
+            raise ValueError("up_hidden needs at least one layer: the limb input is encoded by the first")
+        object.__setattr__(
+            self, "traversals", _checked_subset("traversals", self.traversals, TRAVERSAL_NAMES)
+        )
+        object.__setattr__(self, "relations", _checked_subset("relations", self.relations, RELATION_NAMES))
+        if len(self.traversals) > self.width:
+            raise ValueError(
+                f"width ({self.width}) is too small to split among {len(self.traversals)} traversals"
+            )
+        if self.architecture == "amorpheus" and (self.traversals or self.relations):
+            raise ValueError(
+                "AMORPHEUS has no structural embeddings: set traversals=() and relations=() "
+                "(or use architecture='swat' to keep them)"
+            )
+
+
+def _require_positive_int(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+def _as_tuple(name: str, value: Any) -> tuple:
+    if isinstance(value, str) or not isinstance(value, tuple | list):
+        raise ValueError(f"{name} must be a tuple, got {value!r}")
+    return tuple(value)
+
+
+def _checked_subset(name: str, value: Any, allowed: tuple[str, ...]) -> tuple[str, ...]:
+    chosen = _as_tuple(name, value)
+    unknown = [item for item in chosen if item not in allowed]
+    if unknown:
+        raise ValueError(f"{name} must be drawn from {allowed}, got unknown {unknown}")
+    if len(set(chosen)) != len(chosen):
+        raise ValueError(f"{name} lists an entry twice: {chosen}")
+    return chosen
+
+
+NAMED_VARIANTS: dict[str, dict[str, Any]] = {
+    "swat": {},
+    "amorpheus": {"architecture": "amorpheus", "traversals": (), "relations": ()},
+    "smp": {"architecture": "smp"},
+    "swat_no_pe": {"traversals": ()},
+    "swat_no_re": {"relations": ()},
+    "swat_no_pe_re": {"traversals": (), "relations": ()},
+}
+"""The fields each named variant changes from the defaults (the paper's SWAT)."""
+
+
+def network_config(name: str, **overrides: Any) -> NetworkConfig:
+    """The configuration of a named variant, with any field overridden.
+
+    Args:
+        name: one of :data:`NAMED_VARIANTS` ("swat", "amorpheus", "smp", "swat_no_pe",
+            "swat_no_re", "swat_no_pe_re").
+        **overrides: :class:`NetworkConfig` fields, e.g. ``width=16``.
+
+    Raises:
+        ValueError: unknown name or field, or an invalid value.
+    """
+    if name not in NAMED_VARIANTS:
+        raise ValueError(f"unknown network {name!r}; valid names: {', '.join(NAMED_VARIANTS)}")
+    fields = {field.name for field in dataclasses.fields(NetworkConfig)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise ValueError(f"unknown NetworkConfig fields {unknown}; valid fields: {', '.join(sorted(fields))}")
+    return NetworkConfig(**{**NAMED_VARIANTS[name], **overrides})

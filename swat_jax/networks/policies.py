@@ -1,0 +1,138 @@
+"""TD3 actor and twin critic over limbs, for any architecture of the config (paper section 4.3).
+
+The structure is an input, not state: ``network.apply(params, limb_obs, structure)`` takes one
+body's slice of a :class:`~swat_jax.morphology.StructureBatch`, so one compiled function serves every
+body and ``jax.vmap`` over the task axis runs a whole environment set::
+
+    actor, critic = make_actor_critic(network_config("swat"), obs_features=19)
+    actor_params = actor.init(jax.random.key(0))
+    actions = jax.vmap(actor.apply, in_axes=(None, 0, 0))(actor_params, obs, batch)  # obs [K, B, L, F]
+
+Outputs on padded limbs are zero.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from swat_jax.morphology import StructureBatch
+from swat_jax.networks.config import NetworkConfig
+from swat_jax.networks.smp import SharedModularPolicy, most_children
+from swat_jax.networks.transformer import StructureAwareTransformer
+
+Params = Any
+"""A Flax variables pytree: ``{"params": {...}}``."""
+
+
+def limb_network(config: NetworkConfig, name: str) -> nn.Module:
+    """The per-limb network of the configured architecture: (limb_inputs, structure) -> [batch, limbs]."""
+    if config.architecture == "smp":
+        return SharedModularPolicy(config, name=name)
+    return StructureAwareTransformer(config, name=name)
+
+
+class Actor(nn.Module):
+    """Deterministic policy: one action in [-1, 1] per limb (tanh of the per-limb output)."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
+        """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]."""
+        actions = jnp.tanh(limb_network(self.config, "policy")(limb_obs, structure))
+        return jnp.where(structure.limb_mask, actions, 0.0)
+
+
+class Critic(nn.Module):
+    """Twin Q networks; each limb's input is its observation concatenated with its action.
+
+    Every limb gets its own Q value (BENCHMARK.md: each limb's Q is regressed on the TD target).
+    """
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(
+        self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
+    ) -> tuple[jax.Array, jax.Array]:
+        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs]."""
+        limb_inputs = jnp.concatenate([limb_obs, actions[..., None]], axis=-1)
+        q_values = (limb_network(self.config, name)(limb_inputs, structure) for name in ("q1", "q2"))
+        q1, q2 = (jnp.where(structure.limb_mask, q, 0.0) for q in q_values)
+        return q1, q2
+
+
+def torso_only_structure() -> StructureBatch:
+    """One body's slice for a body of a single limb: enough to initialise any network's parameters.
+
+    No parameter shape depends on the number of limbs, so these parameters serve every body.
+    """
+    return StructureBatch(
+        limb_mask=np.ones(1, bool),
+        parents=np.full(1, -1, np.int32),
+        traversal_positions=np.zeros((1, 3), np.int32),
+        relations=np.zeros((1, 1, 3), np.float32),
+        limb_types=np.zeros(1, np.int32),
+        joint_ranges=np.zeros((1, 2), np.float32),
+        limb_motors=np.full(1, -1, np.int32),
+        num_limbs=np.int32(1),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class LimbNetwork:
+    """A Flax module with its input size: ``init(rng)`` and ``apply(params, *inputs, structure)``."""
+
+    module: nn.Module
+    obs_features: int
+
+    def init(self, rng: jax.Array) -> Params:
+        """Fresh parameters ({"params": ...}) for observations of ``obs_features`` values a limb."""
+        structure = torso_only_structure()
+        limb_obs = jnp.zeros((1, 1, self.obs_features), jnp.float32)
+        inputs = (
+            (limb_obs, structure)
+            if isinstance(self.module, Actor)
+            else (limb_obs, jnp.zeros((1, 1)), structure)
+        )
+        return {"params": self.module.init(rng, *inputs)["params"]}
+
+    def apply(self, params: Params, *inputs: Any, **kwargs: Any) -> Any:
+        """``module.apply``: actor (params, limb_obs, structure), critic (params, limb_obs, actions, structure)."""
+        return self.module.apply(params, *inputs, **kwargs)
+
+
+def make_actor_critic(config: NetworkConfig, obs_features: int) -> tuple[LimbNetwork, LimbNetwork]:
+    """The actor and the twin critic of ``config`` for ``obs_features`` observation values per limb."""
+    return LimbNetwork(Actor(config), obs_features), LimbNetwork(Critic(config), obs_features)
+
+
+def param_count(params: Params) -> int:
+    """Number of scalars in a parameter pytree."""
+    return sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params))
+
+
+def check_structures(config: NetworkConfig, structures: StructureBatch) -> None:
+    """Host-side check (not jittable) that ``config`` can take these bodies; raises ValueError if not.
+
+    Inside jit an out-of-range traversal position or an extra child cannot raise: traversal
+    positions must be below ``max_traversal_positions`` (transformers) and no limb may have more
+    than ``max_children`` children (SMP).
+    """
+    if config.architecture == "smp":
+        needed = most_children(structures.parents)
+        if needed > config.max_children:
+            raise ValueError(f"a limb has {needed} children but max_children is {config.max_children}")
+    elif config.traversals:
+        largest = int(np.max(np.where(structures.limb_mask[..., None], structures.traversal_positions, 0)))
+        if largest >= config.max_traversal_positions:
+            raise ValueError(
+                f"traversal position {largest} needs max_traversal_positions > {largest}, "
+                f"got {config.max_traversal_positions}"
+            )

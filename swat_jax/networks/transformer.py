@@ -1,0 +1,166 @@
+"""The structure-aware transformer (SWAT, paper section 4.3) and, without embeddings, AMORPHEUS.
+
+Every limb is one token. A linear layer shared by all limbs encodes each limb's input, scaled by
+sqrt(width); the traversal-based positional embedding (section 4.1, eq. 3) is added to it; post-
+LayerNorm transformer layers let the limbs attend to each other with a per-head relational bias
+on the logits (section 4.2, eqs. 4-5); a decoder shared by all limbs maps each final token,
+concatenated with the limb's raw input, to one value per limb.
+
+Padded limbs are masked out as keys, so they never influence a real limb.
+"""
+
+from __future__ import annotations
+
+import math
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES, StructureBatch
+from swat_jax.networks.config import NetworkConfig
+
+
+def traversal_embedding_widths(width: int, count: int) -> tuple[int, ...]:
+    """Split the model width among ``count`` traversal tables as evenly as possible.
+
+    The first tables take the remainder: 128 over three traversals gives (43, 43, 42). (The
+    reference splits 128 as 42/42/44; the parameter count is the same.)
+    """
+    base, remainder = divmod(width, count)
+    return tuple(base + (1 if index < remainder else 0) for index in range(count))
+
+
+class TraversalEmbedding(nn.Module):
+    """Positional embedding of section 4.1 (eq. 3): one learned table per selected traversal.
+
+    The vectors of a limb's pre-, in- and post-order positions are concatenated to the model width.
+    """
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, traversal_positions: jax.Array) -> jax.Array:
+        """[limbs, 3] int positions (columns in TRAVERSAL_NAMES order) -> [limbs, width]."""
+        widths = traversal_embedding_widths(self.config.width, len(self.config.traversals))
+        vectors = [
+            nn.Embed(self.config.max_traversal_positions, table_width, name=f"{traversal}_order")(
+                traversal_positions[:, TRAVERSAL_NAMES.index(traversal)]
+            )
+            for traversal, table_width in zip(self.config.traversals, widths, strict=True)
+        ]
+        return jnp.concatenate(vectors, axis=-1)
+
+
+class RelationalEmbedding(nn.Module):
+    """Relational embedding of section 4.2 (eq. 4): R^{ij} = g([R_lap, R_spd, R_ppr]^{ij}), one bias per head.
+
+    g is linear and has no bias term: a constant added to all logits of a head cancels in the
+    softmax, so it could never learn.
+    """
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, relations: jax.Array) -> jax.Array:
+        """[limbs, limbs, 3] relation features (RELATION_NAMES order) -> [heads, limbs, limbs] bias."""
+        columns = [RELATION_NAMES.index(name) for name in self.config.relations]
+        features = jnp.take(relations, jnp.array(columns), axis=-1)
+        relation_bias = nn.Dense(self.config.heads, use_bias=False, name="g")(features)
+        return jnp.moveaxis(relation_bias, -1, 0)
+
+
+class MaskedMultiHeadAttention(nn.Module):
+    """Multi-head self-attention over limbs with an additive per-head bias (eq. 5) and a key mask.
+
+    alpha_h^{ij} = q_h^i . k_h^j / sqrt(width / heads) + R_h^{ij}; padded limbs are removed as keys.
+    The attention weights are sown as ``intermediates/attention_weights`` ([batch, heads, limbs, limbs]).
+    Keys have no bias: like g's bias, it would cancel in the softmax.
+    """
+
+    width: int
+    heads: int
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None) -> jax.Array:
+        """tokens [batch, limbs, width], limb_mask [limbs] bool, relation_bias [heads, limbs, limbs] or None."""
+        head_width = self.width // self.heads
+
+        def project(name: str, use_bias: bool = True) -> jax.Array:
+            projected = nn.Dense(self.width, use_bias=use_bias, name=name)(tokens)
+            return projected.reshape(*tokens.shape[:-1], self.heads, head_width)
+
+        queries, keys, values = project("query"), project("key", use_bias=False), project("value")
+        logits = jnp.einsum("bqhd,bkhd->bhqk", queries, keys) / math.sqrt(head_width)
+        if relation_bias is not None:
+            logits = logits + relation_bias
+        logits = jnp.where(limb_mask, logits, jnp.finfo(logits.dtype).min)
+        attention_weights = jax.nn.softmax(logits, axis=-1)
+        self.sow("intermediates", "attention_weights", attention_weights)
+        attended = jnp.einsum("bhqk,bkhd->bqhd", attention_weights, values)
+        return nn.Dense(self.width, name="output")(attended.reshape(tokens.shape))
+
+
+class TransformerLayer(nn.Module):
+    """Post-LayerNorm encoder layer: x = LN(x + attention(x)); x = LN(x + FF(x)), FF with ReLU."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None) -> jax.Array:
+        """tokens [batch, limbs, width] -> [batch, limbs, width]."""
+        attended = MaskedMultiHeadAttention(self.config.width, self.config.heads, name="attention")(
+            tokens, limb_mask, relation_bias
+        )
+        tokens = nn.LayerNorm(name="attention_norm")(tokens + attended)
+        hidden = nn.relu(nn.Dense(self.config.feedforward, name="feedforward_hidden")(tokens))
+        transformed = nn.Dense(self.config.width, name="feedforward_output")(hidden)
+        return nn.LayerNorm(name="feedforward_norm")(tokens + transformed)
+
+
+class LimbDecoder(nn.Module):
+    """Per-limb decoder shared by all limbs: MLP(concat(final token, raw limb input)) -> one value."""
+
+    hidden: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array, limb_inputs: jax.Array) -> jax.Array:
+        """tokens [batch, limbs, width], limb_inputs [batch, limbs, features] -> [batch, limbs]."""
+        hidden = jnp.concatenate([tokens, limb_inputs], axis=-1)
+        for size in self.hidden:
+            hidden = nn.relu(nn.Dense(size)(hidden))
+        return nn.Dense(1)(hidden)[..., 0]
+
+
+class StructureAwareTransformer(nn.Module):
+    """SWAT (section 4.3), or AMORPHEUS when the config selects no traversals and no relations."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> jax.Array:
+        """One value per limb.
+
+        Args:
+            limb_inputs: [batch, limbs, features] raw per-limb input.
+            structure: one body's slice of a StructureBatch: limb_mask [limbs], traversal_positions
+                [limbs, 3], relations [limbs, limbs, 3] (parents is not used).
+
+        Returns:
+            [batch, limbs] decoder output (padded limbs hold unspecified values).
+        """
+        config = self.config
+        tokens = nn.Dense(config.width, name="limb_encoder")(limb_inputs) * math.sqrt(config.width)
+        if config.traversals:
+            tokens = tokens + TraversalEmbedding(config, name="traversal_embedding")(
+                structure.traversal_positions
+            )
+        relation_bias = (
+            RelationalEmbedding(config, name="relational_embedding")(structure.relations)
+            if config.relations
+            else None
+        )
+        for layer in range(config.layers):
+            layer_bias = relation_bias if layer == 0 or config.relation_bias_in_every_layer else None
+            tokens = TransformerLayer(config, name=f"layer_{layer}")(tokens, structure.limb_mask, layer_bias)
+        return LimbDecoder(config.decoder_hidden, name="decoder")(tokens, limb_inputs)
