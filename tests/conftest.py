@@ -1,4 +1,4 @@
-"""Test-wide setup: the tests' own helpers (tests/reference_numbers.py) are importable."""
+"""Test-wide setup: the tests' own helpers (reference_numbers.py, mujoco_reference.py) are importable."""
 
 import sys
 from pathlib import Path

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from mujoco_reference import numpy_observation
 
 from swat_jax.envs.observation import limb_observation, observation_layout
 from swat_jax.morphology import load
@@ -34,36 +34,6 @@ def simulate(name: str, steps: int = 60, seed: int = 0):
     # After an RK4 step the derived fields belong to an intermediate stage; make them the state's.
     mujoco.mj_forward(model, data)
     return body, model, data
-
-
-def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
-    """BENCHMARK.md's table, written out limb by limb from MuJoCo C data and Jacobians."""
-    rows = []
-    torso_x = data.xpos[1, 0]
-    for limb in range(body.num_limbs):
-        b = limb + 1
-        position = data.xpos[b].copy()
-        if torso_relative_x or limb == 0:
-            position[0] -= torso_x
-        # Velocity of the frame origin = frame Jacobian @ qvel (not mj_objectVelocity: that is the COM's).
-        jacobian_linear, jacobian_angular = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-        mujoco.mj_jacBody(model, data, jacobian_linear, jacobian_angular, b)
-        linear, angular = jacobian_linear @ data.qvel, jacobian_angular @ data.qvel
-        w, x, y, z = data.xquat[b]
-        rotation = Rotation.from_quat([x, y, z, w]).as_rotvec()
-        one_hot = np.zeros(body.family.num_limb_types)
-        if body.limb_types[limb] >= 0:
-            one_hot[body.limb_types[limb]] = 1
-        joint = np.zeros(3)
-        if limb > 0:
-            low, high = body.joint_ranges[limb]
-            address = model.jnt_qposadr[
-                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, body.joint_names[limb])
-            ]
-            angle = np.degrees(data.qpos[address])
-            joint = np.array([(angle - low) / (high - low), (180 + low) / 360, (180 + high) / 360])
-        rows.append(np.concatenate([position, np.clip(linear, -10, 10), angular, rotation, one_hot, joint]))
-    return np.array(rows)
 
 
 def ours(body, model, data, **kwargs) -> np.ndarray:

@@ -103,6 +103,11 @@ def _compile(path: Path) -> mujoco.MjModel:
         raise MorphologyError(path, f"MuJoCo cannot compile this file: {error}") from None
 
 
+def compile_model(morphology: Morphology) -> mujoco.MjModel:
+    """The MuJoCo model of a loaded body (its MJCF file compiled again)."""
+    return _compile(morphology.path)
+
+
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str:
     return mujoco.mj_id2name(model, obj, index) or f"#{index}"
 

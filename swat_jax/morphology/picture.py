@@ -18,7 +18,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from swat_jax.morphology.mjcf import load
+from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
 
 DEFAULT_BACKEND = "egl"
@@ -34,6 +34,8 @@ CAMERA_ELEVATION = -10.0
 """Degrees; slightly from above."""
 CAMERA_AZIMUTH = 90.0
 """Degrees; the camera looks along +y at the x-z plane the body moves in, +x to the right."""
+MAX_GEOMS = 1000
+"""Room for geoms in one scene, far more than any benchmark body has."""
 
 
 class RenderingUnavailable(RuntimeError):
@@ -52,8 +54,18 @@ def gl_backend() -> str:
 
 
 @contextlib.contextmanager
-def _render_context(model: mujoco.MjModel, width: int, height: int) -> Iterator[mujoco.MjrContext]:
-    """A current OpenGL context and a MuJoCo render context drawing into an off-screen buffer."""
+def render_context(model: mujoco.MjModel, width: int, height: int) -> Iterator[mujoco.MjrContext]:
+    """A current OpenGL context and a MuJoCo render context drawing into a ``width`` x ``height``
+    off-screen buffer (``model``'s off-screen size grows to fit it).
+
+    Raises:
+        ValueError: width or height is not positive.
+        RenderingUnavailable: no OpenGL context could be created with the selected backend.
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
+    model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
+    model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
     backend = gl_backend()
     try:
         gl = importlib.import_module(f"mujoco.{backend}").GLContext(width, height)
@@ -83,12 +95,25 @@ def side_camera(data: mujoco.MjData) -> mujoco.MjvCamera:
     return camera
 
 
+def draw(scene: mujoco.MjvScene, context: mujoco.MjrContext, width: int, height: int) -> np.ndarray:
+    """Render ``scene`` into the off-screen buffer of ``context`` and read it back.
+
+    Returns:
+        [height, width, 3] uint8 RGB image, top row first.
+    """
+    viewport = mujoco.MjrRect(0, 0, width, height)
+    pixels = np.empty((height, width, 3), np.uint8)
+    mujoco.mjr_render(viewport, scene, context)
+    mujoco.mjr_readPixels(pixels, None, viewport, context)
+    return np.ascontiguousarray(pixels[::-1])
+
+
 def _initial_pose(morphology_or_path: Morphology | str | Path) -> tuple[mujoco.MjModel, mujoco.MjData]:
     """The compiled body with its state at qpos0 and all positions computed."""
     morphology = (
         morphology_or_path if isinstance(morphology_or_path, Morphology) else load(morphology_or_path)
     )
-    model = mujoco.MjModel.from_xml_path(str(morphology.path))
+    model = compile_model(morphology)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     return model, data
@@ -112,18 +137,10 @@ def render_initial_pose(
         ValueError: width or height is not positive.
         RenderingUnavailable: no OpenGL context could be created with the selected backend.
     """
-    if width < 1 or height < 1:
-        raise ValueError(f"image size must be positive, got {width} x {height}")
     model, data = _initial_pose(morphology_or_path)
-    model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
-    model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
-    scene = mujoco.MjvScene(model, maxgeom=1000)
+    scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
     mujoco.mjv_updateScene(
         model, data, mujoco.MjvOption(), None, side_camera(data), mujoco.mjtCatBit.mjCAT_ALL, scene
     )
-    viewport = mujoco.MjrRect(0, 0, width, height)
-    pixels = np.empty((height, width, 3), np.uint8)
-    with _render_context(model, width, height) as context:
-        mujoco.mjr_render(viewport, scene, context)
-        mujoco.mjr_readPixels(pixels, None, viewport, context)
-    return np.ascontiguousarray(pixels[::-1])
+    with render_context(model, width, height) as context:
+        return draw(scene, context, width, height)

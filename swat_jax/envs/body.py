@@ -1,0 +1,220 @@
+"""One body as a functional MuJoCo MJX environment: ``reset(rng) -> state``, ``step(state, action) -> state``.
+
+Exactly the benchmark of BENCHMARK.md: frame skip 4, the per-limb observation of observation.py, the
+family's reward, termination and reset noise (swat_jax/morphology/families.py), and the 1000-step time
+limit reported as truncation, not termination. One action per limb; the torso's is ignored and the
+others reach their motors through the limb-to-motor map, clipped to [-1, 1].
+
+Two decisions beyond the benchmark text, both documented in the README:
+- Observations are computed from the kinematics of the state after the step. MuJoCo's ``mj_step`` leaves
+  positions and velocities of the last integrator stage in its derived fields, which the reference code
+  read as they were; here a kinematics pass on the new state makes them agree with qpos/qvel.
+- A simulation that produces a non-finite state or a joint speed above :data:`EXPLOSION_SPEED` is
+  terminated, earns reward 0 on that step, and reports an all-zero observation; no NaN leaves ``step``.
+
+All methods are pure functions of their arguments (the class only holds constants), so they jit and vmap.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
+from swat_jax.envs.physics import physics_step
+from swat_jax.morphology.mjcf import compile_model, load
+from swat_jax.morphology.types import Morphology
+
+EXPLOSION_SPEED = 1e3
+"""A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
+BOUNDED_STATE_LIMIT = 100.0
+"""abs(qpos[2:]) and abs(qvel) stay below this for bodies with ``Termination.bounded_state``."""
+
+
+@struct.dataclass
+class EnvState:
+    """State of one body's episode; every field gains leading axes when vmapped.
+
+    n = limbs, F = features per limb (19, or 21 for Animal-Walkers).
+    """
+
+    data: mjx.Data
+    """The simulator state after the last step (positions and velocities computed)."""
+    observation: jax.Array
+    """[n, F] float32 per-limb observation of ``data``."""
+    reward: jax.Array
+    """[] float32 reward of the last step (0 after reset)."""
+    terminated: jax.Array
+    """[] bool: the last step ended the episode by a termination condition (or an unstable simulation)."""
+    truncated: jax.Array
+    """[] bool: the last step reached the time limit without terminating; the learner bootstraps here."""
+    episode_return: jax.Array
+    """[] float32 sum of rewards since reset."""
+    episode_length: jax.Array
+    """[] int32 steps since reset."""
+
+    @property
+    def done(self) -> jax.Array:
+        """[] bool: the episode is over (terminated or truncated)."""
+        return self.terminated | self.truncated
+
+
+class BodyEnv:
+    """The benchmark environment of one body on MJX.
+
+    Args:
+        morphology: a loaded body, a benchmark body name, or the path of an MJCF file.
+        torso_relative_x: subtract the torso's x from every limb's x (the paper's intent, default).
+            False reproduces the reference code (BENCHMARK.md quirk 1): the torso reads x = 0 and every
+            other limb its absolute world x.
+    """
+
+    def __init__(self, morphology: Morphology | str, *, torso_relative_x: bool = True):
+        self.morphology = morphology if isinstance(morphology, Morphology) else load(morphology)
+        self.torso_relative_x = torso_relative_x
+        self.mj_model: mujoco.MjModel = compile_model(self.morphology)
+        self.model: mjx.Model = mjx.put_model(self.mj_model)
+        self._physics_step = physics_step(self.mj_model)
+        self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
+        self.motor_limbs = _motor_limbs(self.morphology, self.mj_model.nu)
+        self.site_ids = np.array(
+            [
+                mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, name)
+                for name, _ in self.morphology.family.termination.site_min_heights
+            ],
+            np.int32,
+        )
+        self._initial_data = mjx.make_data(self.model)
+
+    @property
+    def num_limbs(self) -> int:
+        return self.morphology.num_limbs
+
+    @property
+    def observation_features(self) -> int:
+        """F, the number of values per limb."""
+        return self.layout.features
+
+    def reset(self, rng: jax.Array) -> EnvState:
+        """Start an episode at the initial pose plus the family's reset noise."""
+        return self.start(self.kinematics(self.initial_data(rng)))
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """Apply ``action`` [n] (one value per limb, the torso's ignored) for ``frame_skip`` physics steps."""
+        return self.finish_step(state, self.kinematics(self.simulate(state.data, action)))
+
+    def initial_data(self, rng: jax.Array) -> mjx.Data:
+        """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
+        noise = self.morphology.family.reset_noise
+        position_key, velocity_key = jax.random.split(rng)
+        qpos = self.mj_model.qpos0 + jax.random.uniform(
+            position_key, (self.mj_model.nq,), minval=-noise.qpos_uniform, maxval=noise.qpos_uniform
+        )
+        if noise.qvel_gaussian:
+            qvel = noise.qvel_scale * jax.random.normal(velocity_key, (self.mj_model.nv,))
+        else:
+            qvel = jax.random.uniform(
+                velocity_key, (self.mj_model.nv,), minval=-noise.qvel_scale, maxval=noise.qvel_scale
+            )
+        dtype = self._initial_data.qpos.dtype
+        return self._initial_data.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
+
+    def simulate(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
+        """``frame_skip`` physics steps under ``action`` [n]; derived quantities not yet computed."""
+        data = data.replace(ctrl=jnp.clip(action[self.motor_limbs], -1.0, 1.0))
+        return jax.lax.fori_loop(
+            0, self.morphology.frame_skip, lambda _, d: self._physics_step(self.model, d), data
+        )
+
+    def kinematics(self, data: mjx.Data) -> mjx.Data:
+        """Positions, orientations, sites and frame velocities computed from ``data``'s qpos and qvel."""
+        return mjx.com_vel(self.model, mjx.com_pos(self.model, mjx.kinematics(self.model, data)))
+
+    def start(self, data: mjx.Data) -> EnvState:
+        """The state of a new episode at ``data`` (kinematics computed)."""
+        zero = jnp.zeros((), jnp.float32)
+        return EnvState(
+            data=data,
+            observation=self._observe(data),
+            reward=zero,
+            terminated=jnp.zeros((), bool),
+            truncated=jnp.zeros((), bool),
+            episode_return=zero,
+            episode_length=jnp.zeros((), jnp.int32),
+        )
+
+    def finish_step(self, state: EnvState, data: mjx.Data) -> EnvState:
+        """The state after ``state`` was simulated to ``data`` (kinematics computed): reward, termination,
+        truncation and observation of the step."""
+        unstable = _unstable(data)
+        forward_reward = self._reward(state.data.qpos[0], data.qpos[0], data.ctrl)
+        reward = jnp.where(unstable, 0.0, forward_reward).astype(jnp.float32)
+        terminated = unstable | ~self._alive(data)
+        length = state.episode_length + 1
+        return EnvState(
+            data=data,
+            observation=jnp.where(unstable, 0.0, self._observe(data)),
+            reward=reward,
+            terminated=terminated,
+            truncated=~terminated & (length >= self.morphology.family.max_episode_steps),
+            episode_return=state.episode_return + reward,
+            episode_length=length,
+        )
+
+    def _observe(self, data: mjx.Data) -> jax.Array:
+        """[n, F] float32 (whatever precision the simulation runs in)."""
+        limbs = slice(1, self.num_limbs + 1)
+        return limb_observation(
+            self.layout,
+            data.qpos,
+            data.xpos[limbs],
+            data.xquat[limbs],
+            data.cvel[limbs],
+            data.subtree_com[1],
+            torso_relative_x=self.torso_relative_x,
+        ).astype(jnp.float32)
+
+    def _reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
+        """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (BENCHMARK.md, "Reward")."""
+        reward = self.morphology.family.reward
+        forward = (x_after - x_before) / self.morphology.control_dt
+        return (
+            reward.forward_weight * forward + reward.alive_bonus - reward.control_cost * jnp.sum(control**2)
+        )
+
+    def _alive(self, data: mjx.Data) -> jax.Array:
+        """[] bool: every termination condition of the body holds (BENCHMARK.md, "Termination")."""
+        termination = self.morphology.family.termination
+        alive = jnp.ones((), bool)
+        if termination.height is not None:
+            low, high = termination.height
+            alive &= (data.qpos[1] > low) & (data.qpos[1] < high)
+        if termination.max_abs_angle is not None:
+            alive &= jnp.abs(data.qpos[2]) < termination.max_abs_angle
+        if termination.bounded_state:
+            alive &= jnp.all(jnp.abs(data.qpos[2:]) < BOUNDED_STATE_LIMIT)
+            alive &= jnp.all(jnp.abs(data.qvel) < BOUNDED_STATE_LIMIT)
+        if len(self.site_ids):
+            minimum = np.array([z for _, z in termination.site_min_heights], np.float32)
+            alive &= jnp.all(data.site_xpos[self.site_ids, 2] > minimum)
+        return alive
+
+
+def _unstable(data: mjx.Data) -> jax.Array:
+    """[] bool: the state is not finite or some joint moves faster than EXPLOSION_SPEED."""
+    finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+    return ~finite | jnp.any(jnp.abs(data.qvel) > EXPLOSION_SPEED)
+
+
+def _motor_limbs(morphology: Morphology, num_motors: int) -> np.ndarray:
+    """[nu] int32: the limb whose action drives each actuator (inverse of ``limb_motors``; load() has
+    checked that every actuator drives exactly one limb)."""
+    limbs = np.full(num_motors, -1, np.int32)
+    for limb, motor in enumerate(morphology.limb_motors):
+        if motor >= 0:
+            limbs[motor] = limb
+    return limbs

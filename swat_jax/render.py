@@ -1,0 +1,337 @@
+"""Videos of a body moving: roll out an environment, draw each state off-screen, write MP4 or GIF.
+
+``rollout`` simulates one body under random or zero actions on MJX, ``render_frames`` draws a sequence of
+poses with a side camera that follows the torso, ``write_video`` writes the frames, and ``render_rollout``
+does both with the body's own frame rate. From the shell::
+
+    python -m swat_jax.render hopper_3 -o hopper.mp4 --steps 200
+
+Rendering is headless, with the OpenGL backend named by ``MUJOCO_GL`` (default egl); see
+swat_jax/morphology/picture.py for what to install when no context can be created.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import imageio.v3 as iio
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from swat_jax.envs.body import BodyEnv, EnvState
+from swat_jax.morphology.mjcf import compile_model, load
+from swat_jax.morphology.picture import (
+    MAX_GEOMS,
+    RenderingUnavailable,
+    draw,
+    gl_backend,
+    render_context,
+    side_camera,
+)
+from swat_jax.morphology.types import Morphology
+
+TORSO = 1
+"""MuJoCo body index of the torso (body 0 is the world)."""
+POLICIES = ("random", "zero")
+"""Action choices of :func:`rollout`: uniform in [-1, 1] per limb and step, or all zeros."""
+VIDEO_SUFFIXES = (".mp4", ".gif")
+MAX_GIF_FPS = 50
+"""GIF frame delays are whole hundredths of a second and viewers stretch delays under 0.02 s."""
+ERROR_STATUS = 2
+"""Exit status for a bad body, output name or option."""
+RENDERING_STATUS = 1
+"""Exit status when no OpenGL context can be created or the file cannot be written."""
+
+
+def rollout(env: BodyEnv, steps: int, *, seed: int = 0, policy: str = "random") -> EnvState:
+    """Simulate one episode of ``steps`` steps from a reset, jitted as one reset and one ``lax.scan``.
+
+    The episode does not stop or reset when the body falls or the time limit passes: ``BodyEnv.step``
+    never resets, so the body goes on being simulated (``terminated`` and ``truncated`` still say when
+    the episode would have ended).
+
+    Args:
+        env: the body's environment.
+        steps: number of environment steps (``steps * env.morphology.control_dt`` seconds).
+        seed: seeds the reset noise and the random actions.
+        policy: "random" (actions uniform in [-1, 1] per limb, independent across steps) or "zero".
+
+    Returns:
+        The states stacked on a leading time axis of length steps + 1, the reset state first
+        (``data.qpos`` is [steps + 1, nq]).
+    """
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; use one of {', '.join(POLICIES)}")
+    if steps < 0:
+        raise ValueError(f"steps must be 0 or more, got {steps}")
+
+    def advance(state: EnvState, action: jax.Array) -> tuple[EnvState, EnvState]:
+        state = env.step(state, action)
+        return state, state
+
+    def episode(key: jax.Array) -> EnvState:
+        reset_key, action_key = jax.random.split(key)
+        first = env.reset(reset_key)
+        _, later = jax.lax.scan(advance, first, _actions(action_key, steps, env.num_limbs, policy))
+        return jax.tree.map(lambda start, rest: jnp.concatenate([start[None], rest]), first, later)
+
+    return jax.jit(episode)(jax.random.key(seed))
+
+
+def _actions(key: jax.Array, steps: int, num_limbs: int, policy: str) -> jax.Array:
+    """[steps, num_limbs] float32 actions of ``policy``."""
+    if policy == "zero":
+        return jnp.zeros((steps, num_limbs), jnp.float32)
+    return jax.random.uniform(key, (steps, num_limbs), jnp.float32, minval=-1.0, maxval=1.0)
+
+
+def render_frames(
+    body: Morphology | str | Path, qpos: Any, *, width: int = 480, height: int = 360
+) -> np.ndarray:
+    """Draw a sequence of poses from the side, the camera following the torso along x.
+
+    The camera looks at the torso's x at the torso's height in the first frame, so the floor stays in
+    view when the body falls or jumps. All frames share one OpenGL context.
+
+    Args:
+        body: a loaded body, a benchmark body name or the path of an MJCF file.
+        qpos: [T, nq] joint positions (NumPy or JAX), or a rollout: anything with ``.data.qpos`` of that
+            shape, such as the stacked ``EnvState`` returned by :func:`rollout`.
+        width: image width in pixels.
+        height: image height in pixels.
+
+    Returns:
+        [T, height, width, 3] uint8 RGB frames, top row first.
+
+    Raises:
+        MorphologyError: the name or file is not a usable body.
+        ValueError: qpos is not [T >= 1, nq] for this body, or the size is not positive.
+        RenderingUnavailable: no OpenGL context could be created with the selected backend.
+    """
+    morphology = _morphology(body)
+    model = compile_model(morphology)
+    positions = _positions(qpos, morphology.name, model.nq)
+    data = mujoco.MjData(model)
+    scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
+    option = mujoco.MjvOption()
+    camera_height = _pose(model, data, positions[0]).xpos[TORSO, 2]
+    with render_context(model, width, height) as context:
+        frames = np.empty((len(positions), height, width, 3), np.uint8)
+        for index, position in enumerate(positions):
+            camera = following_camera(_pose(model, data, position), camera_height)
+            mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+            frames[index] = draw(scene, context, width, height)
+    return frames
+
+
+def _morphology(body: Morphology | str | Path) -> Morphology:
+    return body if isinstance(body, Morphology) else load(body)
+
+
+def _pose(model: mujoco.MjModel, data: mujoco.MjData, qpos: np.ndarray) -> mujoco.MjData:
+    """``data`` set to joint positions ``qpos`` [nq], every position computed."""
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def following_camera(data: mujoco.MjData, height: float) -> mujoco.MjvCamera:
+    """The side camera of the initial-pose picture, aimed at the torso's x and y at ``height`` metres."""
+    camera = side_camera(data)
+    camera.lookat[:] = (data.xpos[TORSO, 0], data.xpos[TORSO, 1], height)
+    return camera
+
+
+def _positions(qpos: Any, body: str, nq: int) -> np.ndarray:
+    """[T, nq] float64 joint positions from an array or a rollout; ValueError naming the body otherwise."""
+    source = qpos.data.qpos if hasattr(getattr(qpos, "data", None), "qpos") else qpos
+    positions = np.asarray(source, np.float64)
+    if positions.ndim != 2 or positions.shape[1] != nq or len(positions) == 0:
+        raise ValueError(
+            f"{body}: qpos must be [T, {nq}] (T >= 1 frames of the body's {nq} joint positions), "
+            f"got shape {positions.shape}"
+        )
+    return positions
+
+
+def video_path(path: str | Path) -> Path:
+    """``path`` as a Path, checked to name a video this module writes; ValueError listing them otherwise."""
+    path = Path(path)
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(
+            f"{path}: cannot write a video with suffix {path.suffix or '(none)'!r}; "
+            f"use one of {', '.join(VIDEO_SUFFIXES)}"
+        )
+    return path
+
+
+def write_video(frames: np.ndarray, path: str | Path, *, fps: float) -> None:
+    """Write frames as an H.264 MP4 (yuv420p) or a GIF that loops forever, creating parent folders.
+
+    An MP4 needs even width and height, so an odd last row or column is repeated. A GIF stores frame delays
+    in hundredths of a second, and viewers slow down delays under 0.02 s, so it plays at most 50 fps.
+
+    Args:
+        frames: [T, H, W, 3] uint8 RGB frames.
+        path: the file to write; its suffix (.mp4 or .gif) picks the format.
+        fps: frames per second of playback.
+
+    Raises:
+        ValueError: the suffix is neither .mp4 nor .gif, the frames are not [T, H, W, 3] uint8, fps is
+            not positive, or a GIF asks for more than 50 fps.
+    """
+    path = video_path(path)
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or len(frames) == 0:
+        raise ValueError(f"frames must be [T >= 1, H, W, 3] uint8, got {frames.shape} {frames.dtype}")
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    is_gif = path.suffix.lower() == ".gif"
+    if is_gif and fps > MAX_GIF_FPS:
+        raise ValueError(
+            f"{path}: a GIF plays at most {MAX_GIF_FPS} fps (frame delays are whole hundredths of a second "
+            f"and viewers slow down shorter ones), got fps {fps}; lower fps or write .mp4"
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if is_gif:
+        iio.imwrite(path, frames, plugin="pillow", duration=1000 / fps, loop=0)
+    else:
+        _write_mp4(frames, path, fps)
+
+
+def _write_mp4(frames: np.ndarray, path: Path, fps: float) -> None:
+    """H.264 in yuv420p, which most players and browsers show; the ffmpeg executable is imageio-ffmpeg's."""
+    with warnings.catch_warnings():
+        # imageio-ffmpeg starts ffmpeg with subprocess, whose child execs at once; JAX's warning that a
+        # fork may deadlock its threads is about children that go on running Python.
+        warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+        iio.imwrite(
+            path,
+            _even_size(frames),
+            plugin="FFMPEG",
+            fps=fps,
+            codec="libx264",
+            pixelformat="yuv420p",
+            macro_block_size=1,
+        )
+
+
+def _even_size(frames: np.ndarray) -> np.ndarray:
+    """[T, H', W', 3] with H' and W' rounded up to even by repeating the last row and column."""
+    _, height, width, _ = frames.shape
+    return np.pad(frames, ((0, 0), (0, height % 2), (0, width % 2), (0, 0)), mode="edge")
+
+
+def default_fps(morphology: Morphology, path: str | Path) -> int:
+    """Real time, round(1 / control_dt) (125 for the 0.008 s of most bodies), at most 50 for a GIF."""
+    fps = round(1 / morphology.control_dt)
+    return min(fps, MAX_GIF_FPS) if video_path(path).suffix.lower() == ".gif" else fps
+
+
+def render_rollout(
+    body: Morphology | str | Path,
+    rollout: Any,
+    path: str | Path,
+    *,
+    fps: float | None = None,
+    width: int = 480,
+    height: int = 360,
+) -> Path:
+    """Render a rollout of ``body`` (see :func:`render_frames`) and write it as a video.
+
+    Args:
+        body: a loaded body, a benchmark body name or the path of an MJCF file.
+        rollout: [T, nq] joint positions or anything with ``.data.qpos`` of that shape.
+        path: the .mp4 or .gif file to write.
+        fps: playback frame rate; default :func:`default_fps`, real time except for fast GIFs.
+        width: frame width in pixels.
+        height: frame height in pixels.
+
+    Returns:
+        The path written.
+    """
+    path = video_path(path)
+    morphology = _morphology(body)
+    frames = render_frames(morphology, rollout, width=width, height=height)
+    write_video(frames, path, fps=default_fps(morphology, path) if fps is None else fps)
+    return path
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line parser."""
+    parser = argparse.ArgumentParser(
+        prog="python -m swat_jax.render",
+        description="Simulate one body under random or zero actions and write a video of it, seen from the "
+        "side by a camera that follows the torso. The body is not reset when it falls. Rendering is "
+        "off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl).",
+    )
+    parser.add_argument(
+        "body",
+        metavar="NAME_OR_PATH",
+        help="benchmark body name (python -m swat_jax.morphology list) or MJCF path",
+    )
+    parser.add_argument("-o", "--output", type=Path, required=True, help="video file to write: .mp4 or .gif")
+    parser.add_argument("--steps", type=_positive_int, default=200, help="environment steps (default 200)")
+    parser.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="random",
+        help="actions: uniform in [-1, 1] or zeros (default random)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise and actions (default 0)")
+    parser.add_argument(
+        "--width", type=_positive_int, default=480, help="frame width in pixels (default 480)"
+    )
+    parser.add_argument(
+        "--height", type=_positive_int, default=360, help="frame height in pixels (default 360)"
+    )
+    parser.add_argument(
+        "--fps",
+        type=_positive_int,
+        help="playback frames per second (default: real time, 1 / the body's control step; at most 50 for GIF)",
+    )
+    return parser
+
+
+def run(args: argparse.Namespace) -> None:
+    """Roll out, render and write the video of one parsed command line, printing what was written."""
+    video_path(args.output)
+    gl_backend()
+    env = BodyEnv(args.body)
+    fps = default_fps(env.morphology, args.output) if args.fps is None else args.fps
+    states = rollout(env, args.steps, seed=args.seed, policy=args.policy)
+    path = render_rollout(env.morphology, states, args.output, fps=fps, width=args.width, height=args.height)
+    print(
+        f"wrote {path}: {args.steps + 1} frames of {env.morphology.name}, {args.width} x {args.height}, {fps} fps"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status (2 for a bad body or option, 1 if rendering fails)."""
+    args = build_parser().parse_args(argv)
+    try:
+        run(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return ERROR_STATUS
+    except (RenderingUnavailable, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return RENDERING_STATUS
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

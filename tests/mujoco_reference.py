@@ -1,0 +1,84 @@
+"""Independent NumPy computations from MuJoCo C data that the tests compare swat_jax against."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
+    """BENCHMARK.md's table, written out limb by limb from MuJoCo C data and Jacobians."""
+    rows = []
+    torso_x = data.xpos[1, 0]
+    for limb in range(body.num_limbs):
+        b = limb + 1
+        position = data.xpos[b].copy()
+        if torso_relative_x or limb == 0:
+            position[0] -= torso_x
+        # Velocity of the frame origin = frame Jacobian @ qvel (not mj_objectVelocity: that is the COM's).
+        jacobian_linear, jacobian_angular = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacBody(model, data, jacobian_linear, jacobian_angular, b)
+        linear, angular = jacobian_linear @ data.qvel, jacobian_angular @ data.qvel
+        w, x, y, z = data.xquat[b]
+        rotation = Rotation.from_quat([x, y, z, w]).as_rotvec()
+        one_hot = np.zeros(body.family.num_limb_types)
+        if body.limb_types[limb] >= 0:
+            one_hot[body.limb_types[limb]] = 1
+        joint = np.zeros(3)
+        if limb > 0:
+            low, high = body.joint_ranges[limb]
+            address = model.jnt_qposadr[
+                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, body.joint_names[limb])
+            ]
+            angle = np.degrees(data.qpos[address])
+            joint = np.array([(angle - low) / (high - low), (180 + low) / 360, (180 + high) / 360])
+        rows.append(np.concatenate([position, np.clip(linear, -10, 10), angular, rotation, one_hot, joint]))
+    return np.array(rows)
+
+
+def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """The same random actions through the MJX environment and through plain ``mujoco.mj_step``.
+
+    Both start from the MJX environment's reset state. Returns per-step max abs differences of qpos
+    and qvel [steps], the MJX observations [steps, n, F], rewards and termination flags [steps], and
+    the NumPy observation of the final MuJoCo C state [n, F].
+    """
+    import jax
+
+    from swat_jax.envs import BodyEnv
+
+    env = BodyEnv(name)
+    actions = np.random.default_rng(seed).uniform(-1, 1, (steps, env.num_limbs))
+
+    def rollout(rng, actions):
+        start = env.reset(rng)
+
+        def step(state, action):
+            state = env.step(state, action)
+            return state, state
+
+        return start, jax.lax.scan(step, start, actions)[1]
+
+    start, states = jax.tree_util.tree_map(np.asarray, jax.jit(rollout)(jax.random.PRNGKey(seed), actions))
+    model = env.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = start.data.qpos, start.data.qvel
+    qpos_error, qvel_error = np.zeros(steps), np.zeros(steps)
+    for t in range(steps):
+        data.ctrl[:] = np.clip(actions[t][env.motor_limbs], -1, 1)
+        for _ in range(env.morphology.frame_skip):
+            mujoco.mj_step(model, data)
+        qpos_error[t] = np.abs(data.qpos - states.data.qpos[t]).max()
+        qvel_error[t] = np.abs(data.qvel - states.data.qvel[t]).max()
+    mujoco.mj_forward(model, data)
+    return dict(
+        qpos_error=qpos_error,
+        qvel_error=qvel_error,
+        start_observation=start.observation,
+        observation=states.observation,
+        reward=states.reward,
+        terminated=states.terminated,
+        episode_length=states.episode_length,
+        c_final_observation=numpy_observation(env.morphology, model, data),
+    )

@@ -1,0 +1,132 @@
+"""Many bodies in one jitted step: padding, masks, automatic resets, episode statistics, no NaN.
+
+Two bodies of different limb counts (hopper_3: 3 limbs, cheetah_4_front: 4) with 3 copies each share
+one compiled reset and one compiled step for the whole module.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from swat_jax.envs import MultiTaskEnv
+
+BODIES = ("hopper_3", "cheetah_4_front")
+COPIES = 3
+MAX_LIMBS = 5
+"""One more than the largest body, so both bodies have padding."""
+
+
+@functools.cache
+def compiled():
+    env = MultiTaskEnv(BODIES, COPIES, max_limbs=MAX_LIMBS)
+    return env, jax.jit(env.reset), jax.jit(env.step)
+
+
+def random_action(seed: int) -> jax.Array:
+    return jax.random.uniform(jax.random.PRNGKey(seed), (len(BODIES), COPIES, MAX_LIMBS), minval=-1, maxval=1)
+
+
+def with_body(state, body: int, **changes):
+    """``state`` with fields of one body's EnvState replaced (``data`` changes go in ``data=dict(...)``)."""
+    bodies = list(state.bodies)
+    data_changes = changes.pop("data", {})
+    bodies[body] = bodies[body].replace(data=bodies[body].data.replace(**data_changes), **changes)
+    return state.replace(bodies=tuple(bodies))
+
+
+def test_reset_pads_observations_and_masks_limbs():
+    env, reset, _ = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    assert state.observation.shape == (2, COPIES, MAX_LIMBS, 19)
+    np.testing.assert_array_equal(env.structure.limb_mask, [[1, 1, 1, 0, 0], [1, 1, 1, 1, 0]])
+    np.testing.assert_array_equal(state.observation[0, :, 3:], 0.0)
+    np.testing.assert_array_equal(state.observation[1, :, 4:], 0.0)
+    assert np.abs(np.asarray(state.observation[1, :, :4])).sum(axis=(1, 2)).min() > 0
+    assert not np.allclose(state.observation[0, 0], state.observation[0, 1]), "copies draw their own noise"
+
+
+def test_step_returns_padded_batches_and_ignores_padded_actions():
+    _, reset, step = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    action = random_action(1)
+    next_state, result = step(state, action)
+    assert result.next_observation.shape == (2, COPIES, MAX_LIMBS, 19)
+    for field in (result.reward, result.terminated, result.truncated):
+        assert field.shape == (2, COPIES)
+    np.testing.assert_array_equal(result.next_observation[0, :, 3:], 0.0)
+    garbage = action.at[0, :, 3:].set(7.0).at[1, :, 4:].set(-9.0)
+    _, same = step(state, garbage)
+    np.testing.assert_array_equal(same.next_observation, result.next_observation)
+    np.testing.assert_array_equal(same.reward, result.reward)
+    np.testing.assert_array_equal(next_state.bodies[0].episode_length, 1)
+
+
+def test_copies_are_independent():
+    _, reset, step = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    action = random_action(2)
+    _, result = step(state, action)
+    _, other = step(state, action.at[:, 1].set(-action[:, 1]))
+    np.testing.assert_array_equal(other.next_observation[:, 0], result.next_observation[:, 0])
+    np.testing.assert_array_equal(other.next_observation[:, 2], result.next_observation[:, 2])
+    assert not np.allclose(other.next_observation[:, 1], result.next_observation[:, 1])
+
+
+def test_time_limit_truncates_bootstrappable_episode_and_resets_it():
+    _, reset, step = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    length = jnp.array([999, 5, 5], jnp.int32)
+    state = with_body(state, 1, episode_length=length, episode_return=jnp.array([250.0, 1.0, 1.0]))
+    next_state, result = step(state, random_action(3))
+    np.testing.assert_array_equal(result.truncated[1], [True, False, False])
+    np.testing.assert_array_equal(result.terminated[1], False)
+    np.testing.assert_array_equal(next_state.bodies[1].episode_length, [0, 6, 6])
+    assert next_state.episodes.count.tolist() == [0, 1]
+    assert next_state.episodes.length_sum[1] == 1000
+    assert next_state.episodes.return_sum[1] == pytest.approx(250.0 + float(result.reward[1, 0]))
+    pre_reset, post_reset = result.next_observation[1, 0], next_state.observation[1, 0]
+    assert np.abs(np.asarray(pre_reset - post_reset)).max() > 1e-3, "the buffer gets the pre-reset state"
+    np.testing.assert_array_equal(result.next_observation[1, 1:], next_state.observation[1, 1:])
+
+
+def test_termination_resets_the_copy_and_does_not_truncate():
+    _, reset, step = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    qpos = state.bodies[0].data.qpos.at[1, 1].set(0.3)
+    next_state, result = step(with_body(state, 0, data=dict(qpos=qpos)), random_action(4))
+    np.testing.assert_array_equal(result.terminated[0], [False, True, False])
+    assert not np.asarray(result.truncated).any()
+    np.testing.assert_array_equal(next_state.bodies[0].episode_length, [1, 0, 1])
+    assert float(next_state.bodies[0].data.qpos[1, 1]) == pytest.approx(1.25, abs=0.006)
+
+
+def test_nan_simulation_terminates_and_resets_without_nan_anywhere():
+    _, reset, step = compiled()
+    state = reset(jax.random.PRNGKey(0))
+    qvel = state.bodies[1].data.qvel.at[2].set(jnp.nan)
+    next_state, result = step(with_body(state, 1, data=dict(qvel=qvel)), random_action(5))
+    assert bool(result.terminated[1, 2]) and float(result.reward[1, 2]) == 0.0
+    for array in (
+        result.next_observation,
+        result.reward,
+        next_state.observation,
+        next_state.episodes.return_sum,
+    ):
+        assert np.isfinite(np.asarray(array)).all()
+    assert np.isfinite(np.asarray(next_state.bodies[1].data.qvel)).all()
+    next_state, result = step(next_state, random_action(6))
+    assert np.isfinite(np.asarray(result.next_observation)).all()
+
+
+def test_bodies_with_different_observation_widths_are_refused():
+    with pytest.raises(ValueError, match=r"hopper_3 \(19 features\), nervenet_ostrich \(21 features\)"):
+        MultiTaskEnv(["hopper_3", "nervenet_ostrich"], 1)
+    with pytest.raises(ValueError, match="copies must be at least 1"):
+        MultiTaskEnv(["hopper_3"], 0)
+    with pytest.raises(ValueError, match="max_limbs"):
+        MultiTaskEnv(["hopper_3", "cheetah_4_front"], 1, max_limbs=3)
