@@ -1,0 +1,131 @@
+"""One training iteration as one jitted function: collect a chunk of steps in every task, then update.
+
+    state -> lax.scan(act + env.step + insert, chunk steps) -> lax.scan(sample + TD3 update, updates)
+
+Tasks are the batch axis everywhere: the multi-task environment steps every body's copies, the replay
+buffer holds one ring per task, and the update vmaps its losses over tasks. Exploration follows the
+paper: uniform random actions for each task's first ``random_steps`` steps, then the policy plus
+Gaussian noise (std ``exploration_noise``), clipped to [-1, 1]. Updates start once every task's buffer
+holds a full batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
+from swat_jax.td3.learner import Learner, LearnerState
+from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
+
+
+@struct.dataclass
+class TrainState:
+    """Everything that changes during training (what a checkpoint must hold)."""
+
+    learner: LearnerState
+    buffer: ReplayBuffer
+    env: MultiTaskState
+    rng: jax.Array
+    env_steps: jax.Array
+    """[] int32 environment steps taken per task, summed over its copies (copies x chunk per iteration)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class IterationConfig:
+    """Sizes of one iteration."""
+
+    chunk: int
+    """Environment steps per copy collected per iteration."""
+    updates: int
+    """TD3 updates per iteration."""
+    random_steps: int = 10_000
+    """Per task: steps with uniform random actions before the policy acts."""
+    exploration_noise: float = 0.126
+    """Std of the Gaussian noise added to the policy's actions."""
+    capacity: int = 500_000
+    """Replay rows per task."""
+
+
+def init_train_state(
+    env: MultiTaskEnv, learner: Learner, config: IterationConfig, rng: jax.Array
+) -> TrainState:
+    """Fresh networks, an empty buffer and reset environments."""
+    learner_key, env_key, rng = jax.random.split(rng, 3)
+    return TrainState(
+        learner=learner.init(learner_key),
+        buffer=init_buffer(env.num_bodies, config.capacity, env.max_limbs, env.observation_features),
+        env=env.reset(env_key),
+        rng=rng,
+        env_steps=jnp.zeros((), jnp.int32),
+    )
+
+
+def make_train_iteration(
+    env: MultiTaskEnv, learner: Learner, config: IterationConfig
+) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
+    """The pure ``iteration(state) -> (state, metrics)``; jit it once.
+
+    metrics: per-update critic and actor losses [updates], and per-task rewards of the chunk [chunk, K, n].
+    """
+    structure = jax.tree_util.tree_map(jnp.asarray, env.structure)
+    mask = structure.limb_mask[:, None, :]
+
+    def act(state: TrainState, rng: jax.Array) -> jax.Array:
+        """[K, n, L] exploration actions for the current observations."""
+        policy_key, random_key = jax.random.split(rng)
+        policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(
+            state.learner.actor_params, state.env.observation, structure
+        )
+        noise = config.exploration_noise * jax.random.normal(policy_key, policy.shape)
+        uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
+        action = jnp.where(
+            state.env_steps < config.random_steps, uniform, jnp.clip(policy + noise, -1.0, 1.0)
+        )
+        return jnp.where(mask, action, 0.0)
+
+    def collect(state: TrainState, _) -> tuple[TrainState, jax.Array]:
+        rng, act_key = jax.random.split(state.rng)
+        action = act(state, act_key)
+        env_state, result = env.step(state.env, action)
+        transitions = Transitions(
+            observation=state.env.observation,
+            action=action,
+            reward=result.reward,
+            next_observation=result.next_observation,
+            terminated=result.terminated,
+        )
+        next_state = state.replace(
+            buffer=insert(state.buffer, transitions),
+            env=env_state,
+            rng=rng,
+            env_steps=state.env_steps + env.copies,
+        )
+        return next_state, result.reward
+
+    def update(carry: tuple[LearnerState, ReplayBuffer], rng: jax.Array):
+        learner_state, buffer = carry
+        sample_key, noise_key = jax.random.split(rng)
+        batch = sample(buffer, sample_key, learner.config.batch_size)
+        ready = buffer.size >= learner.config.batch_size
+        learner_state, metrics = jax.lax.cond(
+            ready,
+            lambda s: learner.update(s, batch, structure, noise_key),
+            lambda s: (s, {"critic_loss": jnp.zeros(()), "actor_loss": jnp.zeros(())}),
+            learner_state,
+        )
+        return (learner_state, buffer), metrics
+
+    def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        state, rewards = jax.lax.scan(collect, state, None, length=config.chunk)
+        rng, update_key = jax.random.split(state.rng)
+        (learner_state, _), metrics = jax.lax.scan(
+            update, (state.learner, state.buffer), jax.random.split(update_key, config.updates)
+        )
+        return state.replace(learner=learner_state, rng=rng), {**metrics, "reward": rewards}
+
+    return iteration

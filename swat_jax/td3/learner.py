@@ -1,0 +1,201 @@
+"""The TD3 update over all tasks at once (Fujimoto et al. 2018; paper section 5 and Table 1).
+
+Each task's loss is computed with ``vmap`` over the task axis (its own structure slice and batch), padded
+limbs are masked out, the losses are averaged over tasks, and one gradient step updates the shared
+parameters. The critic gives one Q value per limb; every limb's Q is regressed on the task's TD target
+
+    y = r + discount * (1 - terminated) * min(mean_l Q1'(s', a'), mean_l Q2'(s', a'))
+
+with a' the target policy's action plus clipped Gaussian noise (target policy smoothing), so truncated
+transitions bootstrap and terminated ones do not. The actor maximises the mean over limbs of Q1 and is
+updated every ``policy_delay`` critic updates (masked with optax, no Python branch); target networks
+follow with rate ``tau`` after each actor update.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from swat_jax.morphology.batch import StructureBatch
+from swat_jax.networks.policies import LimbNetwork, Params
+from swat_jax.td3.replay import Transitions
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config:
+    """TD3 hyperparameters; defaults are the paper's (BENCHMARK.md, "Training settings")."""
+
+    discount: float = 0.99
+    """Reward discount."""
+    tau: float = 0.046
+    """Target network update rate."""
+    policy_noise: float = 0.2
+    """Std of the target policy smoothing noise."""
+    noise_clip: float = 0.5
+    """The smoothing noise is clipped to [-noise_clip, noise_clip]."""
+    policy_delay: int = 2
+    """Actor and target updates happen every policy_delay critic updates."""
+    learning_rate: float = 1e-4
+    """Adam learning rate of actor and critic."""
+    max_grad_norm: float = 0.1
+    """Global gradient-norm clip of each network's update."""
+    batch_size: int = 100
+    """Transitions sampled per task per update."""
+
+
+@struct.dataclass
+class LearnerState:
+    """Everything the update changes."""
+
+    actor_params: Params
+    critic_params: Params
+    target_actor_params: Params
+    target_critic_params: Params
+    actor_optimizer: optax.OptState
+    critic_optimizer: optax.OptState
+    updates: jax.Array
+    """[] int32 critic updates done."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """TD3 for one actor/critic pair; ``init`` and ``update`` are pure and jit."""
+
+    actor: LimbNetwork
+    critic: LimbNetwork
+    config: TD3Config
+
+    def optimizer(self) -> optax.GradientTransformation:
+        return optax.chain(
+            optax.clip_by_global_norm(self.config.max_grad_norm), optax.adam(self.config.learning_rate)
+        )
+
+    def init(self, rng: jax.Array) -> LearnerState:
+        actor_key, critic_key = jax.random.split(rng)
+        actor_params, critic_params = self.actor.init(actor_key), self.critic.init(critic_key)
+        return LearnerState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_actor_params=actor_params,
+            target_critic_params=critic_params,
+            actor_optimizer=self.optimizer().init(actor_params),
+            critic_optimizer=self.optimizer().init(critic_params),
+            updates=jnp.zeros((), jnp.int32),
+        )
+
+    def update(
+        self, state: LearnerState, batch: Transitions, structure: StructureBatch, rng: jax.Array
+    ) -> tuple[LearnerState, dict[str, jax.Array]]:
+        """One critic step, and an actor + target step every policy_delay-th call.
+
+        Args:
+            batch: [T, B, ...] transitions, one slice per task.
+            structure: [T, ...] structure of the tasks.
+            rng: key for the target policy smoothing noise.
+        """
+        critic_loss, critic_grads = jax.value_and_grad(self._critic_loss)(
+            state.critic_params, state, batch, structure, rng
+        )
+        critic_updates, critic_optimizer = self.optimizer().update(
+            critic_grads, state.critic_optimizer, state.critic_params
+        )
+        critic_params = optax.apply_updates(state.critic_params, critic_updates)
+
+        delayed = (state.updates + 1) % self.config.policy_delay == 0
+        actor_params, actor_optimizer, actor_loss = jax.lax.cond(
+            delayed,
+            self._actor_step,
+            lambda *_: (state.actor_params, state.actor_optimizer, jnp.zeros((), jnp.float32)),
+            state.actor_params,
+            state.actor_optimizer,
+            critic_params,
+            batch,
+            structure,
+        )
+        rate = jnp.where(delayed, self.config.tau, 0.0)
+        next_state = LearnerState(
+            actor_params=actor_params,
+            critic_params=critic_params,
+            target_actor_params=optax.incremental_update(actor_params, state.target_actor_params, rate),
+            target_critic_params=optax.incremental_update(critic_params, state.target_critic_params, rate),
+            actor_optimizer=actor_optimizer,
+            critic_optimizer=critic_optimizer,
+            updates=state.updates + 1,
+        )
+        return next_state, {"critic_loss": critic_loss, "actor_loss": actor_loss}
+
+    def _actor_step(
+        self,
+        actor_params: Params,
+        actor_optimizer: optax.OptState,
+        critic_params: Params,
+        batch: Transitions,
+        structure: StructureBatch,
+    ) -> tuple[Params, optax.OptState, jax.Array]:
+        loss, grads = jax.value_and_grad(self._actor_loss)(actor_params, critic_params, batch, structure)
+        updates, actor_optimizer = self.optimizer().update(grads, actor_optimizer, actor_params)
+        return optax.apply_updates(actor_params, updates), actor_optimizer, loss
+
+    def _critic_loss(
+        self,
+        critic_params: Params,
+        state: LearnerState,
+        batch: Transitions,
+        structure: StructureBatch,
+        rng: jax.Array,
+    ) -> jax.Array:
+        keys = jax.random.split(rng, batch.reward.shape[0])
+        per_task = jax.vmap(self._task_critic_loss, in_axes=(None, None, None, 0, 0, 0))
+        return jnp.mean(
+            per_task(
+                critic_params, state.target_actor_params, state.target_critic_params, batch, structure, keys
+            )
+        )
+
+    def _task_critic_loss(
+        self,
+        critic_params: Params,
+        target_actor_params: Params,
+        target_critic_params: Params,
+        batch: Transitions,
+        structure: StructureBatch,
+        rng: jax.Array,
+    ) -> jax.Array:
+        """Mean squared TD error over the task's real limbs and batch [B, L]."""
+        mask = structure.limb_mask
+        noise = jnp.clip(
+            self.config.policy_noise * jax.random.normal(rng, batch.action.shape),
+            -self.config.noise_clip,
+            self.config.noise_clip,
+        )
+        next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
+        next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
+        target_q1, target_q2 = self.critic.apply(
+            target_critic_params, batch.next_observation, next_action, structure
+        )
+        next_value = jnp.minimum(_limb_mean(target_q1, mask), _limb_mean(target_q2, mask))
+        target = batch.reward + self.config.discount * (1.0 - batch.terminated) * next_value
+        target = jax.lax.stop_gradient(target)[:, None]
+        q1, q2 = self.critic.apply(critic_params, batch.observation, batch.action, structure)
+        squared = (q1 - target) ** 2 + (q2 - target) ** 2
+        return jnp.sum(jnp.where(mask, squared, 0.0)) / (jnp.sum(mask) * batch.reward.shape[0])
+
+    def _actor_loss(
+        self, actor_params: Params, critic_params: Params, batch: Transitions, structure: StructureBatch
+    ) -> jax.Array:
+        def task_loss(batch: Transitions, structure: StructureBatch) -> jax.Array:
+            action = self.actor.apply(actor_params, batch.observation, structure)
+            q1, _ = self.critic.apply(critic_params, batch.observation, action, structure)
+            return -jnp.mean(_limb_mean(q1, structure.limb_mask))
+
+        return jnp.mean(jax.vmap(task_loss)(batch, structure))
+
+
+def _limb_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
+    """[B, L] -> [B]: mean over the real limbs."""
+    return jnp.sum(jnp.where(mask, values, 0.0), axis=-1) / jnp.sum(mask)

@@ -1,0 +1,84 @@
+"""One replay buffer per task, on the device: fixed-shape arrays plus pure ``insert`` and ``sample``.
+
+T tasks, C capacity per task, L limbs (padded), F features per limb. Every task receives the same number
+of transitions per insert (n copies per task), so one write position and one size serve all tasks.
+Sizes are checked on the host before allocation (:func:`buffer_bytes`), never under jit.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class Transitions:
+    """A batch of transitions with leading axes [T, B] (B = copies on insert, batch size on sample)."""
+
+    observation: jax.Array
+    """[T, B, L, F] float32."""
+    action: jax.Array
+    """[T, B, L] float32."""
+    reward: jax.Array
+    """[T, B] float32."""
+    next_observation: jax.Array
+    """[T, B, L, F] float32, the state the action reached (before any automatic reset)."""
+    terminated: jax.Array
+    """[T, B] bool; a truncated episode is not terminated, so its TD target bootstraps."""
+
+
+@struct.dataclass
+class ReplayBuffer:
+    """Transitions [T, C, ...] with a shared ring-buffer write position and fill level."""
+
+    data: Transitions
+    position: jax.Array
+    """[] int32 next row to write, in [0, C)."""
+    size: jax.Array
+    """[] int32 rows filled, at most C."""
+
+    @property
+    def capacity(self) -> int:
+        return self.data.reward.shape[1]
+
+
+def buffer_bytes(tasks: int, capacity: int, max_limbs: int, features: int) -> int:
+    """Bytes of a buffer of this shape: two observations, an action, a reward and a flag per row."""
+    per_row = 4 * (2 * max_limbs * features + max_limbs + 1) + 1
+    return tasks * capacity * per_row
+
+
+def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> ReplayBuffer:
+    """An empty buffer (all zeros)."""
+    observation = jnp.zeros((tasks, capacity, max_limbs, features), jnp.float32)
+    return ReplayBuffer(
+        data=Transitions(
+            observation=observation,
+            action=jnp.zeros((tasks, capacity, max_limbs), jnp.float32),
+            reward=jnp.zeros((tasks, capacity), jnp.float32),
+            next_observation=observation,
+            terminated=jnp.zeros((tasks, capacity), bool),
+        ),
+        position=jnp.zeros((), jnp.int32),
+        size=jnp.zeros((), jnp.int32),
+    )
+
+
+def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
+    """Write ``batch`` [T, n, ...] at the write position, wrapping around; the oldest rows go first."""
+    copies = batch.reward.shape[1]
+    rows = (buffer.position + jnp.arange(copies)) % buffer.capacity
+    data = jax.tree_util.tree_map(lambda stored, new: stored.at[:, rows].set(new), buffer.data, batch)
+    return ReplayBuffer(
+        data=data,
+        position=(buffer.position + copies) % buffer.capacity,
+        size=jnp.minimum(buffer.size + copies, buffer.capacity),
+    )
+
+
+def sample(buffer: ReplayBuffer, rng: jax.Array, batch_size: int) -> Transitions:
+    """``batch_size`` rows per task, uniformly and independently per task from the filled rows."""
+    tasks = buffer.data.reward.shape[0]
+    rows = jax.random.randint(rng, (tasks, batch_size), 0, jnp.maximum(buffer.size, 1))
+    return jax.tree_util.tree_map(lambda stored: jax.vmap(lambda s, r: s[r])(stored, rows), buffer.data)

@@ -1,0 +1,58 @@
+"""Per-task replay buffers: inserts wrap around, samples come only from filled rows of their own task."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from swat_jax.td3 import Transitions, buffer_bytes, init_buffer, insert, sample
+
+TASKS, CAPACITY, LIMBS, FEATURES, COPIES = 3, 10, 4, 2, 4
+
+
+def numbered_batch(start: int) -> Transitions:
+    """Rows whose every value encodes (task, insertion number): task * 1000 + number."""
+    numbers = jnp.arange(start, start + COPIES, dtype=jnp.float32)
+    value = jnp.arange(TASKS, dtype=jnp.float32)[:, None] * 1000 + numbers[None, :]
+    return Transitions(
+        observation=jnp.broadcast_to(value[..., None, None], (TASKS, COPIES, LIMBS, FEATURES)),
+        action=jnp.broadcast_to(value[..., None], (TASKS, COPIES, LIMBS)),
+        reward=value,
+        next_observation=jnp.broadcast_to(-value[..., None, None], (TASKS, COPIES, LIMBS, FEATURES)),
+        terminated=(value % 2) == 0,
+    )
+
+
+def filled(inserts: int):
+    buffer = init_buffer(TASKS, CAPACITY, LIMBS, FEATURES)
+    for i in range(inserts):
+        buffer = jax.jit(insert)(buffer, numbered_batch(i * COPIES))
+    return buffer
+
+
+def test_inserts_wrap_around_and_overwrite_the_oldest_rows():
+    buffer = filled(3)  # 12 rows into 10: rows 0-1 hold numbers 10-11
+    assert int(buffer.size) == CAPACITY and int(buffer.position) == 2
+    np.testing.assert_array_equal(buffer.data.reward[0], [10, 11, 2, 3, 4, 5, 6, 7, 8, 9])
+    np.testing.assert_array_equal(buffer.data.reward[2], 2000 + np.array([10, 11, 2, 3, 4, 5, 6, 7, 8, 9]))
+    np.testing.assert_array_equal(buffer.data.next_observation[1, :, 0, 0], -buffer.data.reward[1])
+
+
+def test_samples_come_from_filled_rows_of_their_own_task():
+    buffer = filled(1)  # 4 of 10 rows filled
+    batch = jax.jit(sample, static_argnums=2)(buffer, jax.random.PRNGKey(0), 256)
+    reward = np.asarray(batch.reward)
+    assert reward.shape == (TASKS, 256)
+    for task in range(TASKS):
+        assert set(np.unique(reward[task]) - task * 1000) == {0, 1, 2, 3}
+    np.testing.assert_array_equal(batch.observation[..., 0, 0], reward)
+    np.testing.assert_array_equal(batch.action[..., 0], reward)
+    np.testing.assert_array_equal(batch.terminated, reward % 2 == 0)
+    assert not np.array_equal(reward[0] % 1000, reward[1] % 1000), "tasks sample independently"
+
+
+def test_buffer_bytes_counts_every_array():
+    buffer = init_buffer(TASKS, CAPACITY, LIMBS, FEATURES)
+    arrays = jax.tree_util.tree_leaves(buffer.data)
+    assert buffer_bytes(TASKS, CAPACITY, LIMBS, FEATURES) == sum(a.nbytes for a in arrays)

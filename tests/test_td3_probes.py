@@ -1,0 +1,134 @@
+"""TD3 probes with known answers (in the style of rejax): the learner must find them in seconds.
+
+Each probe draws fresh transitions from a tiny known process for two tasks with different limb counts
+(padded to 5 limbs), runs the jitted update in a ``lax.scan``, and checks the critic's per-limb Q values
+or the actor's actions against the exact answer.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from swat_jax.morphology import load, pad_structures
+from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.td3.learner import Learner, TD3Config
+from swat_jax.td3.replay import Transitions
+
+FEATURES = 3
+BATCH = 64
+STRUCTURE = pad_structures([load("hopper_3"), load("cheetah_4_front")], max_limbs=5)
+MASK = np.asarray(STRUCTURE.limb_mask)
+
+
+def learner(discount: float = 0.5) -> Learner:
+    config = network_config("amorpheus", width=32, heads=2, layers=1, feedforward=64)
+    actor, critic = make_actor_critic(config, FEATURES)
+    td3 = TD3Config(discount=discount, learning_rate=3e-3, max_grad_norm=10.0, batch_size=BATCH)
+    return Learner(actor, critic, td3)
+
+
+def random_batch(rng: jax.Array, *, reward_fn, terminated: bool) -> Transitions:
+    """Observations uniform in [-1, 1], random actions; reward from ``reward_fn(obs, action)`` [T, B]."""
+    keys = jax.random.split(rng, 3)
+    shape = (2, BATCH, 5)
+    mask = jnp.asarray(MASK)[:, None, :]
+    observation = jnp.where(mask[..., None], jax.random.uniform(keys[0], (*shape, FEATURES), minval=-1), 0.0)
+    action = jnp.where(mask, jax.random.uniform(keys[1], shape, minval=-1), 0.0)
+    next_observation = jnp.where(
+        mask[..., None], jax.random.uniform(keys[2], (*shape, FEATURES), minval=-1), 0.0
+    )
+    return Transitions(
+        observation=observation,
+        action=action,
+        reward=reward_fn(observation, action),
+        next_observation=next_observation,
+        terminated=jnp.full(shape[:2], terminated),
+    )
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def train(td3: Learner, reward_fn, terminated: bool, updates: int):
+    def one_update(state, rng):
+        batch_key, noise_key = jax.random.split(rng)
+        batch = random_batch(batch_key, reward_fn=reward_fn, terminated=terminated)
+        return td3.update(state, batch, STRUCTURE, noise_key)
+
+    state = td3.init(jax.random.PRNGKey(0))
+    state, metrics = jax.lax.scan(one_update, state, jax.random.split(jax.random.PRNGKey(1), updates))
+    probe = random_batch(jax.random.PRNGKey(2), reward_fn=reward_fn, terminated=terminated)
+    return state, metrics, probe
+
+
+def critic_values(td3: Learner, state, batch: Transitions) -> np.ndarray:
+    """Per-limb Q1 on real limbs [T, B, L] (NaN on padding)."""
+    q1, _ = jax.vmap(td3.critic.apply, in_axes=(None, 0, 0, 0))(
+        state.critic_params, batch.observation, batch.action, STRUCTURE
+    )
+    return np.where(MASK[:, None, :], np.asarray(q1), np.nan)
+
+
+def constant_reward(observation, action):
+    return jnp.ones(action.shape[:2])
+
+
+def limb_mean_reward(observation, action):
+    """The mean over real limbs of the first feature (a permutation-invariant value any network can read)."""
+    mask = jnp.asarray(MASK)[:, None, :]
+    return jnp.where(mask, observation[..., 0], 0.0).sum(-1) / mask.sum(-1)
+
+
+def matching_reward(observation, action):
+    """-mean over real limbs of (a - obs[..., 0] * 0.8)^2: the best action is 0.8 * the first feature."""
+    mask = jnp.asarray(MASK)[:, None, :]
+    error = jnp.where(mask, (action - 0.8 * observation[..., 0]) ** 2, 0.0)
+    return -error.sum(-1) / mask.sum(-1)
+
+
+@pytest.mark.parametrize("terminated, expected", [(True, 1.0), (False, 2.0)])
+def test_critic_learns_the_value_of_a_constant_reward(terminated, expected):
+    """Terminal: Q = 1. Truncated (bootstrapping), discount 0.5: Q = 1 / (1 - 0.5) = 2."""
+    td3 = learner()
+    state, metrics, probe = train(td3, constant_reward, terminated, 1500)
+    q = critic_values(td3, state, probe)
+    assert np.nanmean(np.abs(q - expected)) < 0.1, np.nanmean(q)
+    assert float(metrics["critic_loss"][-100:].mean()) < float(metrics["critic_loss"][:100].mean())
+
+
+def test_critic_learns_an_observation_dependent_value():
+    td3 = learner()
+    state, _, probe = train(td3, limb_mean_reward, True, 1500)
+    q = critic_values(td3, state, probe)
+    expected = np.asarray(limb_mean_reward(probe.observation, probe.action))[..., None]
+    assert np.nanmean(np.abs(q - expected)) < 0.1
+
+
+def test_actor_learns_the_best_action_per_limb():
+    td3 = learner()
+    state, _, probe = train(td3, matching_reward, True, 2000)
+    action = jax.vmap(td3.actor.apply, in_axes=(None, 0, 0))(state.actor_params, probe.observation, STRUCTURE)
+    best = 0.8 * np.asarray(probe.observation[..., 0])
+    error = np.abs(np.asarray(action) - best)[np.broadcast_to(MASK[:, None, :], best.shape)]
+    assert error.mean() < 0.1, error.mean()
+    np.testing.assert_array_equal(np.asarray(action)[~np.broadcast_to(MASK[:, None, :], best.shape)], 0.0)
+
+
+def test_actor_and_targets_update_every_second_step():
+    td3 = learner()
+    state, _, _ = train(td3, constant_reward, True, 1)
+    initial = td3.init(jax.random.PRNGKey(0))
+    same = jax.tree_util.tree_map(np.array_equal, state.actor_params, initial.actor_params)
+    assert all(jax.tree_util.tree_leaves(same)), "after one update the actor has not moved"
+    assert all(
+        jax.tree_util.tree_leaves(
+            jax.tree_util.tree_map(np.array_equal, state.target_critic_params, initial.target_critic_params)
+        )
+    )
+    state, _, _ = train(td3, constant_reward, True, 2)
+    moved = jax.tree_util.tree_map(np.array_equal, state.actor_params, initial.actor_params)
+    assert not all(jax.tree_util.tree_leaves(moved)), "after two updates the actor has moved"
+    assert int(state.updates) == 2
