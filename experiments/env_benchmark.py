@@ -43,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from machine import cpu_model
 
 from swat_jax.compilation_cache import cache_directory
 from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
@@ -205,18 +206,6 @@ def in_subprocess(spec: dict[str, Any], environment: dict[str, str] | None = Non
         out_of_memory = any(marker in completed.stderr for marker in OUT_OF_MEMORY_MARKERS)
         raise WorkerError(f"worker {spec} failed (exit {completed.returncode}):\n{tail}", out_of_memory)
     return json.loads(completed.stdout.strip().splitlines()[-1])
-
-
-def cpu_model() -> str:
-    """The CPU model from /proc/cpuinfo (the platform's processor string elsewhere)."""
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def machine_description(info: dict[str, Any]) -> str:

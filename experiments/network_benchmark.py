@@ -12,7 +12,6 @@ relative to AMORPHEUS from the same run.
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -21,6 +20,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from machine import cpu_model
 
 from swat_jax.morphology import StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import LimbNetwork, make_actor_critic, network_config
@@ -29,18 +29,6 @@ SETS = (("animal_walkers", "Animal-Walkers", 21), ("cwhh", "CWHH++", 19))
 """(set name for get_set, display name, observation values per limb)."""
 NETWORKS = ("swat", "amorpheus", "smp")
 COLUMNS = ("actor forward", "actor fwd+bwd", "critic forward", "critic fwd+bwd")
-
-
-def cpu_model() -> str:
-    """The CPU model from /proc/cpuinfo (the platform's processor string elsewhere)."""
-    try:
-        with open("/proc/cpuinfo") as cpuinfo:
-            for line in cpuinfo:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def median_milliseconds(function: Callable[..., Any], args: tuple, repeats: int) -> float:
