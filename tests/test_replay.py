@@ -5,8 +5,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from swat_jax.td3 import Transitions, buffer_bytes, init_buffer, insert, sample
+from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
 
 TASKS, CAPACITY, LIMBS, FEATURES, COPIES = 3, 10, 4, 2, 4
 
@@ -56,3 +58,18 @@ def test_buffer_bytes_counts_every_array():
     buffer = init_buffer(TASKS, CAPACITY, LIMBS, FEATURES)
     arrays = jax.tree_util.tree_leaves(buffer.data)
     assert buffer_bytes(TASKS, CAPACITY, LIMBS, FEATURES) == sum(a.nbytes for a in arrays)
+
+
+def test_buffer_check_reports_gib_and_names_the_flag_to_lower():
+    needed = buffer_bytes(5, 500_000, 13, 21)
+    assert needed / 2**30 == pytest.approx(5.22, abs=0.01)
+    report = check_buffer_fits(5, 500_000, 13, 21, free_bytes=80 * 2**30)
+    assert "5.22 GiB" in report and "5 tasks x 500,000 transitions" in report
+    with pytest.raises(
+        MemoryError,
+        match=r"5.22 GiB .* do not fit in 3.20 GiB .* lower --replay-capacity to at most 306,646$",
+    ) as error:
+        check_buffer_fits(5, 500_000, 13, 21, free_bytes=4 * 2**30)
+    fitting = int(str(error.value).rsplit(" ", 1)[1].replace(",", ""))
+    assert buffer_bytes(5, fitting, 13, 21) <= 0.8 * 4 * 2**30 < buffer_bytes(5, fitting + 1, 13, 21)
+    assert free_memory_bytes() > 0

@@ -7,9 +7,15 @@ Sizes are checked on the host before allocation (:func:`buffer_bytes`), never un
 
 from __future__ import annotations
 
+import os
+
 import jax
 import jax.numpy as jnp
 from flax import struct
+
+GIB = 2**30
+USABLE_FRACTION = 0.8
+"""Share of the free memory the buffers may take; the rest is for networks, simulation and XLA."""
 
 
 @struct.dataclass
@@ -47,6 +53,46 @@ def buffer_bytes(tasks: int, capacity: int, max_limbs: int, features: int) -> in
     """Bytes of a buffer of this shape: two observations, an action, a reward and a flag per row."""
     per_row = 4 * (2 * max_limbs * features + max_limbs + 1) + 1
     return tasks * capacity * per_row
+
+
+def free_memory_bytes(device: jax.Device | None = None) -> int:
+    """Free memory of ``device`` (default: the first JAX device): the allocator's limit minus what is in
+    use on a GPU, the available physical memory on a CPU."""
+    device = device or jax.devices()[0]
+    stats = device.memory_stats() if device.platform != "cpu" else None
+    if stats and "bytes_limit" in stats:
+        return int(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_buffer_fits(
+    tasks: int,
+    capacity: int,
+    max_limbs: int,
+    features: int,
+    free_bytes: int,
+    *,
+    flag: str = "--replay-capacity",
+) -> str:
+    """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
+
+    Args:
+        free_bytes: memory available for the buffers' device (see :func:`free_memory_bytes`).
+        flag: the option that sets ``capacity``, named in the error.
+    """
+    needed = buffer_bytes(tasks, capacity, max_limbs, features)
+    usable = int(USABLE_FRACTION * free_bytes)
+    report = (
+        f"replay buffers: {needed / GIB:.2f} GiB ({tasks} tasks x {capacity:,} transitions x "
+        f"{max_limbs} limbs x {features} features)"
+    )
+    if needed > usable:
+        fitting = usable // buffer_bytes(tasks, 1, max_limbs, features)
+        raise MemoryError(
+            f"{report} do not fit in {usable / GIB:.2f} GiB ({USABLE_FRACTION:.0%} of the "
+            f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting:,}"
+        )
+    return report
 
 
 def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> ReplayBuffer:
