@@ -1,0 +1,162 @@
+"""Time the TD3 update on a whole environment set: all tasks vmapped in one call against one task at a time.
+
+Throughput is sampled transitions per second of update work (tasks x batch x updates / seconds) for
+(a) ``Learner.update`` on the [T, B] batch of every training body of the set at once, and (b) the same
+update called once per task with a one-task slice [1, B] (one compiled function serves every task, since
+all slices have the same padded shape). Each timed call runs ``--updates`` updates in a ``lax.scan``
+inside one jit, so dispatch does not dominate. Random transitions (fixed seed, observations zeroed on
+padded limbs) stand in for replay samples. Compile time is reported separately; the throughput is the
+median over repeats after one warm-up call.
+
+    python experiments/update_benchmark.py [--set animal_walkers] [--network swat] [--batch 100]
+        [--updates 10] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from machine import cpu_model
+
+from swat_jax.envs.observation import KINEMATIC_FEATURES
+from swat_jax.morphology import Morphology, StructureBatch, get_set, load, pad_structures
+from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.td3.learner import Learner, LearnerState, TD3Config
+from swat_jax.td3.replay import Transitions
+
+UpdateLoop = Callable[[LearnerState, Transitions, StructureBatch, jax.Array], LearnerState]
+
+
+def observation_features(bodies: list[Morphology]) -> int:
+    """Observation values per limb (kinematics, limb-type one-hot, joint angle and range), shared by all."""
+    widths = {KINEMATIC_FEATURES + body.family.num_limb_types + 3 for body in bodies}
+    if len(widths) != 1:
+        raise ValueError(f"bodies of the set differ in observation width: {sorted(widths)}")
+    return widths.pop()
+
+
+def random_transitions(structures: StructureBatch, batch: int, features: int) -> Transitions:
+    """Fixed-seed transitions [T, batch, ...]; observations and actions are zero on padded limbs."""
+    tasks, limbs = structures.limb_mask.shape
+    rng = np.random.default_rng(0)
+    mask = structures.limb_mask[:, None, :]
+
+    def observation() -> jax.Array:
+        return jnp.asarray(rng.normal(size=(tasks, batch, limbs, features)) * mask[..., None], jnp.float32)
+
+    return Transitions(
+        observation=observation(),
+        action=jnp.asarray(rng.uniform(-1, 1, size=(tasks, batch, limbs)) * mask, jnp.float32),
+        reward=jnp.asarray(rng.normal(size=(tasks, batch)), jnp.float32),
+        next_observation=observation(),
+        terminated=jnp.asarray(rng.uniform(size=(tasks, batch)) < 0.01),
+    )
+
+
+def update_loop(learner: Learner, updates: int) -> UpdateLoop:
+    """``updates`` consecutive ``learner.update`` calls on the same batch, scanned inside one function."""
+
+    def run(
+        state: LearnerState, batch: Transitions, structure: StructureBatch, rng: jax.Array
+    ) -> LearnerState:
+        def step(state: LearnerState, key: jax.Array) -> tuple[LearnerState, None]:
+            return learner.update(state, batch, structure, key)[0], None
+
+        return jax.lax.scan(step, state, jax.random.split(rng, updates))[0]
+
+    return run
+
+
+def compile_seconds(function: UpdateLoop, *args) -> tuple[Callable[..., LearnerState], float]:
+    """The jitted, compiled ``function`` for these arguments' shapes, and the trace + compile time."""
+    start = time.perf_counter()
+    compiled = jax.jit(function).lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
+def median_seconds(run: Callable[[], LearnerState], repeats: int) -> float:
+    """Median wall time of ``run()`` after one warm-up call."""
+    jax.block_until_ready(run())
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(run())
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def task_slices(tree: Transitions | StructureBatch, tasks: int) -> list:
+    """The one-task slices [k:k+1] of every leaf, for k in range(tasks)."""
+    return [jax.tree_util.tree_map(lambda leaf, k=k: leaf[k : k + 1], tree) for k in range(tasks)]
+
+
+def benchmark(set_name: str, network: str, batch: int, updates: int, repeats: int) -> dict[str, float]:
+    """Compile seconds and transitions per second of the vmapped and the one-task-at-a-time update."""
+    bodies = [load(name) for name in get_set(set_name).split("train")]
+    features = observation_features(bodies)
+    structures = jax.tree_util.tree_map(jnp.asarray, pad_structures(bodies))
+    tasks = structures.limb_mask.shape[0]
+    transitions = random_transitions(structures, batch, features)
+    actor, critic = make_actor_critic(network_config(network), obs_features=features)
+    learner = Learner(actor, critic, TD3Config(batch_size=batch))
+    state, rng = learner.init(jax.random.key(0)), jax.random.key(1)
+    loop = update_loop(learner, updates)
+
+    vmapped, vmapped_compile = compile_seconds(loop, state, transitions, structures, rng)
+    batches, structure_slices = task_slices(transitions, tasks), task_slices(structures, tasks)
+    one_task, one_task_compile = compile_seconds(loop, state, batches[0], structure_slices[0], rng)
+
+    def task_by_task() -> LearnerState:
+        task_state = state
+        for task_batch, task_structure in zip(batches, structure_slices, strict=True):
+            task_state = one_task(task_state, task_batch, task_structure, rng)
+        return task_state
+
+    transitions_per_call = tasks * batch * updates
+    return {
+        "tasks": tasks,
+        "vmapped compile": vmapped_compile,
+        "one-task compile": one_task_compile,
+        "vmapped": transitions_per_call
+        / median_seconds(lambda: vmapped(state, transitions, structures, rng), repeats),
+        "one-task": transitions_per_call / median_seconds(task_by_task, repeats),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--set", default="animal_walkers", help="environment set (training bodies) to update on"
+    )
+    parser.add_argument("--network", default="swat", help="network variant, any name network_config accepts")
+    parser.add_argument("--batch", type=int, default=100, help="sampled transitions per task per update")
+    parser.add_argument("--updates", type=int, default=10, help="updates per timed call (scanned in one jit)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed calls per measurement (median)")
+    args = parser.parse_args()
+
+    print(
+        f"CPU: {cpu_model()}; jax {jax.__version__} on {jax.devices()[0].platform}; "
+        f"{args.updates} updates per call, {args.repeats} repeats"
+    )
+    result = benchmark(args.set, args.network, args.batch, args.updates, args.repeats)
+    print(
+        "| set | network | tasks x batch | compile vmapped / one-task (s) | vmapped transitions/s "
+        "| one-task-at-a-time transitions/s | vmapped / one-task |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    print(
+        f"| {args.set} | {args.network} | {result['tasks']}x{args.batch} "
+        f"| {result['vmapped compile']:.1f} / {result['one-task compile']:.1f} "
+        f"| {result['vmapped']:,.0f} | {result['one-task']:,.0f} | {result['vmapped'] / result['one-task']:.2f} |",
+        flush=True,
+    )
+
+
+if __name__ == "__main__":
+    main()
