@@ -1,6 +1,12 @@
 PYTHON ?= python3
+ENV ?= animal_walkers
+ALGO ?= swat
+SEED ?= 0
+STEPS ?= 10000000
+PRESET ?= paper
+ARGS ?=
 
-.PHONY: install test lint format morphologies
+.PHONY: install test lint format morphologies train
 
 install:  ## install swat_jax (editable) with the test and lint tools
 	$(PYTHON) -m pip install -e ".[dev]"
@@ -18,3 +24,6 @@ format:  ## apply the formatter and safe lint fixes
 
 morphologies:  ## regenerate the variant bodies in morphologies/ from the intact ones
 	$(PYTHON) -m swat_jax.morphology.generate
+
+train:  ## train: make train ENV=<set or MJCF folder> ALGO= SEED= STEPS= PRESET=paper|fast ARGS="<more flags>"
+	$(PYTHON) -m swat_jax.train --preset $(PRESET) --env $(ENV) --algo $(ALGO) --seed $(SEED) --steps $(STEPS) $(ARGS)

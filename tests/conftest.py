@@ -1,6 +1,54 @@
-"""Test-wide setup: the tests' own helpers (reference_numbers.py, mujoco_reference.py) are importable."""
+"""Test-wide setup: the tests' own helpers are importable; a tiny training run shared by the command tests."""
 
+import shutil
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).parent))
+
+
+MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"
+
+
+def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
+    """A run small enough for CI: hopper_3 alone, 2 copies, a 1-layer AMORPHEUS of width 16."""
+    from swat_jax.runs.config import TrainConfig
+    from swat_jax.td3.iteration import IterationConfig
+    from swat_jax.td3.learner import TD3Config
+
+    fields = dict(
+        env=str(env_dir),
+        algo="amorpheus",
+        steps=600,
+        copies=2,
+        iteration=IterationConfig(chunk=50, updates=20, random_steps=100, capacity=1000),
+        td3=TD3Config(batch_size=16),
+        width=16,
+        layers=1,
+        feedforward=32,
+        log_interval=200,
+        checkpoint_interval=400,
+        run_dir=str(run_dir),
+    )
+    return TrainConfig(**{**fields, **overrides})
+
+
+@pytest.fixture(scope="session")
+def hopper_folder(tmp_path_factory) -> Path:
+    """A folder-of-MJCF environment set holding hopper_3 only."""
+    folder = tmp_path_factory.mktemp("hopper_only")
+    shutil.copy(MORPHOLOGIES / "hopper_3.xml", folder)
+    shutil.copytree(MORPHOLOGIES / "assets", folder / "assets")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def trained_run(tmp_path_factory, hopper_folder) -> Path:
+    """The run directory of a finished tiny run (600 steps of hopper_3)."""
+    from swat_jax.train import train
+
+    run_dir = tmp_path_factory.mktemp("runs") / "tiny"
+    train(tiny_train_config(run_dir, hopper_folder), progress=False)
+    return run_dir

@@ -39,16 +39,16 @@ class TrainState:
 class IterationConfig:
     """Sizes of one iteration."""
 
-    chunk: int
+    chunk: int = 100
     """Environment steps per copy collected per iteration."""
-    updates: int
-    """TD3 updates per iteration."""
+    updates: int = 100
+    """TD3 updates per iteration (each samples ``batch_size`` transitions from every task)."""
     random_steps: int = 10_000
     """Per task: steps with uniform random actions before the policy acts."""
     exploration_noise: float = 0.126
     """Std of the Gaussian noise added to the policy's actions."""
     capacity: int = 500_000
-    """Replay rows per task."""
+    """Replay rows per task (the paper: 500K)."""
 
 
 def init_train_state(

@@ -81,8 +81,8 @@ class Learner:
         return LearnerState(
             actor_params=actor_params,
             critic_params=critic_params,
-            target_actor_params=actor_params,
-            target_critic_params=critic_params,
+            target_actor_params=jax.tree_util.tree_map(jnp.copy, actor_params),
+            target_critic_params=jax.tree_util.tree_map(jnp.copy, critic_params),
             actor_optimizer=self.optimizer().init(actor_params),
             critic_optimizer=self.optimizer().init(critic_params),
             updates=jnp.zeros((), jnp.int32),

@@ -96,14 +96,14 @@ def check_buffer_fits(
 
 
 def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> ReplayBuffer:
-    """An empty buffer (all zeros)."""
-    observation = jnp.zeros((tasks, capacity, max_limbs, features), jnp.float32)
+    """An empty buffer (all zeros; every array its own buffer, so a jitted step may donate them)."""
+    observation_shape = (tasks, capacity, max_limbs, features)
     return ReplayBuffer(
         data=Transitions(
-            observation=observation,
+            observation=jnp.zeros(observation_shape, jnp.float32),
             action=jnp.zeros((tasks, capacity, max_limbs), jnp.float32),
             reward=jnp.zeros((tasks, capacity), jnp.float32),
-            next_observation=observation,
+            next_observation=jnp.zeros(observation_shape, jnp.float32),
             terminated=jnp.zeros((tasks, capacity), bool),
         ),
         position=jnp.zeros((), jnp.int32),

@@ -1,0 +1,144 @@
+"""Orbax checkpoints of everything a run needs to continue, and of the actor alone for eval and export.
+
+A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with four items:
+
+- ``state``: the whole :class:`~swat_jax.td3.iteration.TrainState` (parameters, target parameters,
+  optimizer states, replay buffers, environment states, RNG keys, counters) as a flat dict of its
+  non-empty arrays (Orbax cannot write zero-size arrays, and MJX data has some);
+- ``manifest``: the shape and dtype of every array of ``state``, checked against what the run expects
+  before anything is read, so a mismatched checkpoint fails with the arrays that differ;
+- ``actor``: the actor parameters, so a policy loads without reading the replay buffers;
+- ``info``: environment steps, iterations and seconds trained, and what a policy needs to be rebuilt
+  (bodies, padded limb count, observation features).
+
+Orbax writes each step to a temporary folder and renames it when complete, so an interrupted write
+leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+MAX_LISTED = 5
+"""Mismatched arrays named in an error message."""
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that is missing, unreadable or does not match the run; the message says what to do."""
+
+
+def flatten(tree: Any) -> dict[str, np.ndarray | jax.Array]:
+    """The non-empty arrays of ``tree`` by their key path (``.learner.actor_params['params']...``)."""
+    return {jax.tree_util.keystr(path): leaf for path, leaf in jax.tree_util.tree_leaves_with_path(tree) if leaf.size}
+
+
+def unflatten(template: Any, arrays: dict[str, Any]) -> Any:
+    """``template`` (arrays or ShapeDtypeStructs) with its non-empty leaves taken from ``arrays``."""
+
+    def fill(path: Any, leaf: Any) -> Any:
+        if not np.prod(leaf.shape):
+            return jnp.zeros(leaf.shape, leaf.dtype)
+        return jnp.asarray(arrays[jax.tree_util.keystr(path)])
+
+    return jax.tree_util.tree_map_with_path(fill, template)
+
+
+def manifest(tree: Any) -> dict[str, list]:
+    """[shape, dtype] of every non-empty array of ``tree``."""
+    return {key: [list(leaf.shape), str(leaf.dtype)] for key, leaf in flatten(tree).items()}
+
+
+class Checkpoints:
+    """The checkpoints of one run directory: ``save`` after iterations, ``restore`` to continue."""
+
+    def __init__(self, run_dir: Path, keep: int = 2):
+        self.directory = Path(run_dir).absolute() / "checkpoints"
+        self.manager = ocp.CheckpointManager(
+            self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
+        )
+
+    def latest_step(self) -> int | None:
+        """Environment steps of the newest complete checkpoint, or None."""
+        return self.manager.latest_step()
+
+    def save(self, state: Any, actor_params: Any, info: dict[str, Any]) -> None:
+        """Write a checkpoint named by ``info["env_steps"]`` and wait until it is on disk."""
+        self.manager.save(
+            int(info["env_steps"]),
+            args=ocp.args.Composite(
+                state=ocp.args.StandardSave(flatten(state)),
+                manifest=ocp.args.JsonSave(manifest(state)),
+                actor=ocp.args.StandardSave(actor_params),
+                info=ocp.args.JsonSave(info),
+            ),
+            force=True,
+        )
+        self.manager.wait_until_finished()
+
+    def restore(self, template: Any) -> tuple[Any, dict[str, Any]]:
+        """The newest checkpoint's state (shaped like ``template``) and info."""
+        step = self._latest()
+        saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
+        expected = manifest(template)
+        if saved != expected:
+            raise CheckpointError(f"{self._path(step)} does not match this run: {_differences(saved, expected)}")
+        abstract = {
+            key: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for key, leaf in flatten(template).items()
+        }
+        restored = self._read(
+            step, state=ocp.args.StandardRestore(abstract), info=ocp.args.JsonRestore()
+        )
+        return unflatten(template, restored["state"]), dict(restored["info"])
+
+    def info(self) -> dict[str, Any]:
+        """The newest checkpoint's info."""
+        return dict(self._read(self._latest(), info=ocp.args.JsonRestore())["info"])
+
+    def restore_actor(self, template: Any) -> Any:
+        """The newest checkpoint's actor parameters, shaped like ``template``."""
+        abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), template)
+        return self._read(self._latest(), actor=ocp.args.StandardRestore(abstract))["actor"]
+
+    def close(self) -> None:
+        self.manager.close()
+
+    def _latest(self) -> int:
+        step = self.manager.latest_step()
+        if step is None:
+            raise CheckpointError(
+                f"no checkpoint in {self.directory}; nothing to resume (start a new run with --overwrite)"
+            )
+        return step
+
+    def _path(self, step: int) -> Path:
+        return self.directory / str(step)
+
+    def _read(self, step: int, **items: Any) -> Any:
+        try:
+            return self.manager.restore(step, args=ocp.args.Composite(**items))
+        except Exception as error:
+            raise CheckpointError(
+                f"{self._path(step)} is unreadable ({type(error).__name__}: {error}); delete that folder to "
+                f"fall back to an earlier checkpoint, or start over with --overwrite"
+            ) from error
+
+
+def _differences(saved: dict[str, list], expected: dict[str, list]) -> str:
+    """A short list of the arrays that are missing, extra or differently shaped."""
+    lines = [f"{key} is missing" for key in expected if key not in saved]
+    lines += [f"{key} is not expected" for key in saved if key not in expected]
+    lines += [
+        f"{key} is {saved[key][0]} {saved[key][1]}, expected {expected[key][0]} {expected[key][1]}"
+        for key in expected
+        if key in saved and saved[key] != expected[key]
+    ]
+    more = f" (and {len(lines) - MAX_LISTED} more)" if len(lines) > MAX_LISTED else ""
+    return "; ".join(lines[:MAX_LISTED]) + more + (
+        ". Was config.json edited, or the code changed since it was written? Start a new run with --overwrite"
+    )

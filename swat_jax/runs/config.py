@@ -1,0 +1,176 @@
+"""The frozen, typed configuration of a training run, its presets and its JSON form (``config.json``).
+
+``python -m swat_jax.train`` parses a :class:`TrainConfig` with tyro, so every field's docstring is its
+``--help`` line. A preset is a whole :class:`TrainConfig` used as the defaults that flags override:
+
+- ``paper``: one environment copy per task, and one TD3 update (batch 100 from every task) per
+  environment step of each task, as in the paper and the reference code.
+- ``fast``: many copies per task, a larger batch and fewer updates per environment step, for wall clock.
+
+Budget convention (BENCHMARK.md): ``steps`` counts environment steps summed over all bodies of the set,
+so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from pathlib import Path
+from typing import Any, Literal
+
+from swat_jax.morphology import get_set
+from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, network_config
+from swat_jax.td3.iteration import IterationConfig
+from swat_jax.td3.learner import TD3Config
+
+Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
+Preset = Literal["paper", "fast"]
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot run, or a config file that cannot be read; the message says the fix."""
+
+
+NETWORK_SIZES = ("width", "heads", "layers", "feedforward")
+PRESET_NAMES: tuple[str, ...] = typing.get_args(Preset)
+
+
+def _require_positive(flag: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022)."""
+
+    env: str = "animal_walkers"
+    """Environment set (hopper, walker, cheetah, humanoid, wh, whh, cwh, cwhh, animal_walkers) or a folder of MJCF files; trains on its train split."""
+    algo: Algorithm = "swat"
+    """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
+    preset: Preset = "paper"
+    """Sizes below that this run started from: paper (1 copy per task, 1 update per step) or fast (many copies)."""
+    seed: int = 0
+    """Seed of network initialisation, resets, exploration and replay sampling."""
+    steps: int = 10_000_000
+    """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
+    copies: int = 1
+    """Parallel environment copies per body."""
+    iteration: IterationConfig = IterationConfig()
+    """One jitted iteration: per-copy steps collected (chunk), updates, random steps, noise, replay capacity."""
+    td3: TD3Config = TD3Config()
+    """TD3 hyperparameters (the paper's by default); batch_size is per body."""
+    width: int | None = None
+    """Transformer model width; None keeps the algorithm's (128)."""
+    heads: int | None = None
+    """Attention heads; None keeps the algorithm's (2)."""
+    layers: int | None = None
+    """Transformer layers; None keeps the algorithm's (3)."""
+    feedforward: int | None = None
+    """Feed-forward width of each layer; None keeps the algorithm's (256)."""
+    torso_relative_x: bool = True
+    """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
+    reference_inorder: bool = False
+    """Use the reference code's in-order traversal for the positional embedding (BENCHMARK.md quirk 2)."""
+    log_interval: int = 10_000
+    """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
+    checkpoint_interval: int = 200_000
+    """Environment steps (all bodies) between checkpoints; one is also written at the end and on Ctrl-C."""
+    keep_checkpoints: int = 2
+    """Most recent checkpoints kept on disk."""
+    run_dir: str = ""
+    """Run directory; empty means runs/<env>-<algo>-seed<seed>."""
+
+    def __post_init__(self) -> None:
+        if self.algo not in NAMED_VARIANTS:
+            raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
+        if self.preset not in PRESET_NAMES:
+            raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
+        for name in ("steps", "copies", "log_interval", "checkpoint_interval", "keep_checkpoints"):
+            _require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
+        for name in ("chunk", "updates", "capacity"):
+            _require_positive(f"--iteration.{name}", getattr(self.iteration, name))
+        _require_positive("--td3.batch-size", self.td3.batch_size)
+        _require_positive("--td3.policy-delay", self.td3.policy_delay)
+        if self.iteration.random_steps < 0:
+            raise ConfigError(f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}")
+        if self.iteration.capacity < self.copies:
+            raise ConfigError(
+                f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
+                f"(--copies {self.copies})"
+            )
+        try:
+            self.network()
+        except ValueError as error:
+            raise ConfigError(f"network sizes: {error}") from error
+
+    def network(self) -> NetworkConfig:
+        """The network of ``algo`` with the sizes given here."""
+        sizes = {name: getattr(self, name) for name in NETWORK_SIZES if getattr(self, name) is not None}
+        return network_config(self.algo, **sizes)
+
+    def bodies(self) -> tuple[str, ...]:
+        """The train bodies of ``env`` (names, or MJCF paths for a folder)."""
+        try:
+            return get_set(self.env).split("train")
+        except ValueError as error:
+            raise ConfigError(str(error)) from error
+
+    def directory(self) -> Path:
+        """The run directory."""
+        return Path(self.run_dir or f"runs/{Path(self.env).name}-{self.algo}-seed{self.seed}")
+
+    def steps_per_iteration(self, num_bodies: int) -> int:
+        """Environment steps, summed over bodies, of one iteration."""
+        return num_bodies * self.copies * self.iteration.chunk
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
+
+
+PRESETS: dict[str, TrainConfig] = {
+    "paper": TrainConfig(preset="paper", copies=1, iteration=IterationConfig(chunk=100, updates=100)),
+    "fast": TrainConfig(
+        preset="fast",
+        copies=16,
+        iteration=IterationConfig(chunk=32, updates=64),
+        td3=TD3Config(batch_size=256),
+    ),
+}
+"""The defaults each preset gives every flag."""
+
+
+def load_config(path: str | Path) -> TrainConfig:
+    """Read a run's ``config.json``; ConfigError names the file and the field when it does not fit."""
+    path = Path(path)
+    try:
+        fields = json.loads(path.read_text())
+    except FileNotFoundError as error:
+        raise ConfigError(f"{path}: no such file; is this a swat_jax run directory?") from error
+    except (OSError, json.JSONDecodeError) as error:
+        raise ConfigError(f"{path}: not readable JSON ({error}); restore it or start a new run") from error
+    return _build(TrainConfig, fields, path)
+
+
+def _build(cls: type, fields: Any, path: Path) -> Any:
+    """``cls(**fields)`` with nested dataclasses rebuilt and every field name checked."""
+    if not isinstance(fields, dict):
+        raise ConfigError(f"{path}: expected an object for {cls.__name__}, got {fields!r}")
+    known = {field.name: field for field in dataclasses.fields(cls)}
+    unknown = sorted(set(fields) - set(known))
+    if unknown:
+        raise ConfigError(f"{path}: unknown {cls.__name__} fields {unknown}; valid: {', '.join(known)}")
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for name, value in fields.items():
+        kind = hints[name]
+        if dataclasses.is_dataclass(kind):
+            value = _build(kind, value, path)
+        elif isinstance(value, list):
+            value = tuple(value)
+        values[name] = value
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{path}: {error}") from error

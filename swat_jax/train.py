@@ -1,0 +1,367 @@
+"""Train one policy on every body of an environment set: ``python -m swat_jax.train --env hopper``.
+
+The host loop only calls the jitted iteration (collect a chunk in every copy of every body, then the
+chunk's TD3 updates, see :mod:`swat_jax.td3.iteration`), writes metrics every ``log_interval`` steps and
+checkpoints every ``checkpoint_interval`` steps. Ctrl-C or SIGTERM finishes the running iteration,
+writes a checkpoint and exits; ``--resume RUN_DIR`` continues from the newest checkpoint, and on the
+same machine the continued run equals an uninterrupted one exactly.
+
+Run directory::
+
+    RUN_DIR/config.json        the resolved TrainConfig (flags + preset)
+    RUN_DIR/metrics.csv        one row per log interval: returns and lengths per body, losses, steps/s
+    RUN_DIR/tensorboard/       the same scalars for TensorBoard
+    RUN_DIR/checkpoints/<N>/   Orbax checkpoints named by environment steps (all bodies)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+import signal
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import tyro
+from tqdm import tqdm
+
+from swat_jax.envs.multi_task import EpisodeStats
+from swat_jax.networks import param_count
+from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
+from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.experiment import CONFIG_FILE, Experiment
+from swat_jax.runs.metrics import MetricsWriter
+from swat_jax.td3.iteration import TrainState
+from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
+
+ERROR_STATUS = 2
+LOSSES = ("critic_loss", "actor_loss")
+RESUMABLE_FIELDS = ("steps", "run_dir")
+"""Fields ``--resume`` may change; every other field is the run's own."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainCommand(TrainConfig):
+    """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022).
+
+    Flags override the preset's values (--preset paper|fast); --help after --preset shows that preset's
+    defaults. Metrics, config and checkpoints go to the run directory.
+    """
+
+    resume: str = ""
+    """Continue the run in this directory from its newest checkpoint (with its saved config; --steps may raise the budget)."""
+    overwrite: bool = False
+    """Delete an existing run directory of the same name and start over."""
+    progress: bool = True
+    """Show a progress bar (steps, steps/s, mean return)."""
+
+    def config(self) -> TrainConfig:
+        return TrainConfig(
+            **{field.name: getattr(self, field.name) for field in dataclasses.fields(TrainConfig)}
+        )
+
+
+class RunExistsError(ConfigError):
+    """A run directory would be overwritten."""
+
+
+class StopRequest:
+    """Set by SIGINT / SIGTERM: the loop checkpoints after the running iteration and returns.
+
+    A second Ctrl-C aborts at once, without a checkpoint.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        print(
+            f"\n{signal.Signals(signum).name}: stopping after this iteration and writing a checkpoint "
+            "(Ctrl-C again aborts without one)",
+            file=sys.stderr,
+        )
+
+
+@dataclasses.dataclass
+class RunResult:
+    """How a call to :func:`train` ended."""
+
+    run_dir: Path
+    env_steps: int
+    interrupted: bool
+
+
+def prepare_run_dir(config: TrainConfig, *, resume: bool, overwrite: bool) -> Path:
+    """Create (or reuse, when resuming) the run directory and write ``config.json``."""
+    run_dir = config.directory()
+    if resume:
+        if not (run_dir / CONFIG_FILE).exists():
+            raise ConfigError(f"{run_dir}: no {CONFIG_FILE}; not a run directory to resume")
+    elif run_dir.exists() and any(run_dir.iterdir()):
+        if not overwrite:
+            raise RunExistsError(
+                f"run directory {run_dir} exists; continue it with --resume {run_dir}, start over with "
+                "--overwrite, or pick another --run-dir"
+            )
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / CONFIG_FILE).write_text(config.to_json())
+    return run_dir
+
+
+def train(
+    config: TrainConfig,
+    *,
+    resume: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    after_iteration: Callable[[int], None] | None = None,
+) -> RunResult:
+    """Run (or continue) training until ``config.steps`` or a stop signal; returns where it ended.
+
+    Args:
+        config: the run's configuration (for ``resume``, the saved one with any new budget).
+        resume: continue from the newest checkpoint in ``config.directory()``.
+        overwrite: replace an existing run directory (otherwise RunExistsError).
+        progress: show a progress bar.
+        after_iteration: called with the iteration count after each iteration (tests use it to interrupt).
+
+    Raises:
+        ConfigError, CheckpointError, MemoryError: with a message that says what to change.
+    """
+    run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
+    experiment = Experiment.build(config)
+    env = experiment.env
+    print(
+        f"run {run_dir}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
+        f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
+        f"{env.max_limbs} limbs max"
+    )
+    print(
+        check_buffer_fits(
+            env.num_bodies,
+            config.iteration.capacity,
+            env.max_limbs,
+            env.observation_features,
+            free_memory_bytes(),
+            flag="--iteration.capacity",
+        )
+    )
+    checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
+    try:
+        if resume:
+            state, info = checkpoints.restore(experiment.state_shapes())
+            print(f"resumed from {checkpoints.directory / str(info['env_steps'])}")
+        else:
+            state, info = experiment.init_state(), {"env_steps": 0, "iterations": 0, "seconds": 0.0}
+        metrics = MetricsWriter(run_dir, resumed_at=info["env_steps"] if resume else None)
+        try:
+            return _loop(experiment, state, info, checkpoints, metrics, progress, after_iteration)
+        finally:
+            metrics.close()
+    finally:
+        checkpoints.close()
+
+
+def _loop(
+    experiment: Experiment,
+    state: TrainState,
+    info: dict[str, Any],
+    checkpoints: Checkpoints,
+    metrics: MetricsWriter,
+    progress: bool,
+    after_iteration: Callable[[int], None] | None,
+) -> RunResult:
+    config, env = experiment.config, experiment.env
+    per_iteration = config.steps_per_iteration(env.num_bodies)
+    total = max(1, math.ceil(config.steps / per_iteration))
+    log_every = max(1, round(config.log_interval / per_iteration))
+    checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
+    done = int(info["iterations"])
+    seconds = float(info["seconds"])
+    losses = LossWindow(info.get("loss_window", []))
+
+    start = time.perf_counter()
+    print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
+    iteration = experiment.iteration().lower(state).compile()
+    print(f"compiled in {time.perf_counter() - start:.1f} s")
+
+    saved = done
+
+    def save() -> None:
+        nonlocal saved
+        info = {
+            "env_steps": done * per_iteration,
+            "iterations": done,
+            "seconds": seconds,
+            "loss_window": losses.values(),
+            **experiment.info(),
+        }
+        checkpoints.save(state, state.learner.actor_params, info)
+        saved = done
+
+    stop = StopRequest()
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    bar = tqdm(
+        total=total * per_iteration,
+        initial=done * per_iteration,
+        unit="step",
+        disable=not progress,
+        smoothing=0.1,
+    )
+    timed, window_start = 0, time.perf_counter()
+    try:
+        while done < total and not stop.requested:
+            state, step_metrics = iteration(state)
+            losses.add(step_metrics)
+            done, timed = done + 1, timed + 1
+            bar.update(per_iteration)
+            if done % log_every == 0 or done == total:
+                jax.block_until_ready(state.env.episodes)
+                now = time.perf_counter()
+                seconds += now - window_start
+                row = {
+                    "env_steps": done * per_iteration,
+                    "iterations": done,
+                    "steps_per_second": timed * per_iteration / (now - window_start),
+                    **losses.means(),
+                    **_episode_columns(env.body_names, state.env.episodes),
+                }
+                state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies)))
+                metrics.write(row)
+                bar.set_postfix(
+                    mean_return=f"{row['mean_return']:.1f}", critic_loss=f"{row['critic_loss']:.3g}"
+                )
+                losses.clear()
+                timed, window_start = 0, now
+            if done % checkpoint_every == 0:
+                save()
+            if after_iteration is not None:
+                after_iteration(done)
+        if saved != done:
+            save()
+    finally:
+        bar.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=done < total)
+
+
+class LossWindow:
+    """Per-iteration mean losses since the last metrics row.
+
+    Saved in checkpoints (``values``), so the row after a resume averages the same iterations as an
+    uninterrupted run's.
+    """
+
+    def __init__(self, saved: list[dict[str, float]]):
+        self.iterations: list[dict[str, Any]] = list(saved)
+
+    def add(self, metrics: dict[str, jax.Array]) -> None:
+        self.iterations.append({name: metrics[name] for name in LOSSES})
+
+    def values(self) -> list[dict[str, float]]:
+        """Each iteration's mean losses as floats."""
+        return [{name: float(np.mean(np.asarray(m[name]))) for name in LOSSES} for m in self.iterations]
+
+    def means(self) -> dict[str, float]:
+        """The losses averaged over the window's iterations (float64 over float32 per-iteration means)."""
+        values = self.values()
+        return {name: float(np.mean(np.array([v[name] for v in values], np.float64))) for name in LOSSES}
+
+    def clear(self) -> None:
+        self.iterations = []
+
+
+def _episode_columns(body_names: tuple[str, ...], episodes: EpisodeStats) -> dict[str, float]:
+    """Mean return (over bodies) and per-body mean return, mean length and count of finished episodes."""
+    count = np.asarray(episodes.count)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        returns = np.asarray(episodes.return_sum) / count
+        lengths = np.asarray(episodes.length_sum) / count
+    finished = returns[count > 0]
+    columns: dict[str, float] = {"mean_return": float(np.mean(finished)) if finished.size else math.nan}
+    for name, episode_return, length, n in zip(body_names, returns, lengths, count, strict=True):
+        label = Path(name).stem
+        columns[f"return/{label}"] = float(episode_return)
+        columns[f"length/{label}"] = float(length)
+        columns[f"episodes/{label}"] = int(n)
+    return columns
+
+
+def _preset_defaults(argv: list[str]) -> TrainCommand:
+    """The defaults of the preset named on the command line (``--preset NAME`` or ``--preset=NAME``)."""
+    name = "paper"
+    for index, arg in enumerate(argv):
+        if arg == "--preset" and index + 1 < len(argv):
+            name = argv[index + 1]
+        elif arg.startswith("--preset="):
+            name = arg.split("=", 1)[1]
+    preset = PRESETS.get(name, PRESETS["paper"])
+    return TrainCommand(
+        **{field.name: getattr(preset, field.name) for field in dataclasses.fields(TrainConfig)}
+    )
+
+
+def resolve(command: TrainCommand, defaults: TrainCommand) -> TrainConfig:
+    """The config to run: the command's, or for ``--resume`` the saved one with a new budget.
+
+    Raises:
+        ConfigError: ``--resume`` together with options that contradict the saved config.
+    """
+    if not command.resume:
+        return command.config()
+    run_dir = Path(command.resume)
+    saved = load_config(run_dir / CONFIG_FILE)
+    contradicting = [
+        f"--{field.name.replace('_', '-')} {getattr(command, field.name)!r} (run has {getattr(saved, field.name)!r})"
+        for field in dataclasses.fields(TrainConfig)
+        if field.name not in RESUMABLE_FIELDS
+        and getattr(command, field.name) != getattr(defaults, field.name)
+        and getattr(command, field.name) != getattr(saved, field.name)
+    ]
+    if contradicting:
+        raise ConfigError(
+            f"--resume {run_dir} continues the run with its saved {CONFIG_FILE}; these options differ from it: "
+            + ", ".join(contradicting)
+            + ". Drop them, or start a new run in another --run-dir"
+        )
+    steps = command.steps if command.steps != defaults.steps else saved.steps
+    return dataclasses.replace(saved, steps=steps, run_dir=str(run_dir))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the command line and train; returns the exit status (2 for a bad option or run directory)."""
+    argv = sys.argv[1:] if argv is None else argv
+    defaults = _preset_defaults(argv)
+    command = tyro.cli(TrainCommand, args=argv, default=defaults, prog="python -m swat_jax.train")
+    try:
+        config = resolve(command, defaults)
+        result = train(
+            config, resume=bool(command.resume), overwrite=command.overwrite, progress=command.progress
+        )
+    except (ConfigError, CheckpointError, MemoryError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return ERROR_STATUS
+    if result.interrupted:
+        print(
+            f"stopped at {result.env_steps:,} steps; continue with: python -m swat_jax.train --resume {result.run_dir}"
+        )
+    else:
+        print(
+            f"done: {result.env_steps:,} steps in {result.run_dir}; evaluate with: python -m swat_jax.eval {result.run_dir}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,184 @@
+"""The training command: run directory, metrics, checkpoints, interruption, exact resume, clear errors."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import signal
+import struct
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import tiny_train_config
+from tensorboardX.proto import event_pb2
+
+from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
+from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.experiment import Experiment, load_policy
+from swat_jax.runs.metrics import read_metrics
+from swat_jax.train import RunExistsError, TrainCommand, main, resolve, train
+
+TIMING_COLUMNS = {"steps_per_second"}
+
+
+def final_state(run_dir: Path):
+    config = load_config(run_dir / "config.json")
+    checkpoints = Checkpoints(run_dir)
+    try:
+        return checkpoints.restore(Experiment.build(config).state_shapes())
+    finally:
+        checkpoints.close()
+
+
+def tensorboard_tags(run_dir: Path) -> set[str]:
+    """Scalar tags in the run's TensorBoard event files (TFRecord framing read by hand)."""
+    tags = set()
+    for path in (run_dir / "tensorboard").glob("events.out.tfevents.*"):
+        data = path.read_bytes()
+        offset = 0
+        while offset < len(data):
+            (length,) = struct.unpack("<Q", data[offset : offset + 8])
+            event = event_pb2.Event.FromString(data[offset + 12 : offset + 12 + length])
+            tags |= {value.tag for value in event.summary.value}
+            offset += 12 + length + 4
+    return tags
+
+
+def test_run_directory_holds_config_metrics_tensorboard_and_checkpoints(trained_run):
+    config = load_config(trained_run / "config.json")
+    assert config == tiny_train_config(trained_run, Path(config.env))
+    rows = read_metrics(trained_run)
+    assert [row["env_steps"] for row in rows] == [200, 400, 600]
+    for column in ("return/hopper_3", "length/hopper_3", "episodes/hopper_3", "critic_loss", "actor_loss"):
+        assert column in rows[0]
+    assert all(row["steps_per_second"] > 0 for row in rows)
+    assert sum(row["episodes/hopper_3"] for row in rows) >= 3, "random hopper_3 episodes last ~80 steps"
+    assert {"return/hopper_3", "length/hopper_3", "critic_loss", "steps_per_second"} <= tensorboard_tags(trained_run)
+    assert sorted(int(p.name) for p in (trained_run / "checkpoints").iterdir() if p.name.isdigit()) == [400, 600]
+    policy = load_policy(trained_run)
+    assert policy.info["env_steps"] == 600 and policy.info["bodies"] == ["hopper_3"]
+
+
+def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, hopper_folder, tmp_path):
+    config = tiny_train_config(tmp_path / "resumed", hopper_folder)
+
+    def interrupt(iterations: int) -> None:
+        if iterations == 3:
+            signal.raise_signal(signal.SIGINT)
+
+    stopped = train(config, progress=False, after_iteration=interrupt)
+    assert stopped.interrupted and stopped.env_steps == 300
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler, "the handler is restored"
+    finished = train(config, resume=True, progress=False)
+    assert not finished.interrupted and finished.env_steps == 600
+
+    (resumed, resumed_info), (uninterrupted, info) = final_state(tmp_path / "resumed"), final_state(trained_run)
+    assert resumed_info["iterations"] == info["iterations"] == 6
+    a, b = flatten(resumed), flatten(uninterrupted)
+    assert a.keys() == b.keys()
+    differing = [key for key in a if not np.array_equal(np.asarray(a[key]), np.asarray(b[key]))]
+    assert not differing, f"resumed run differs in {differing[:5]}"
+    rows, reference = read_metrics(tmp_path / "resumed"), read_metrics(trained_run)
+    assert [row["env_steps"] for row in rows] == [200, 400, 600]
+    for row, expected in zip(rows, reference, strict=True):
+        assert {k: v for k, v in row.items() if k not in TIMING_COLUMNS} == pytest.approx(
+            {k: v for k, v in expected.items() if k not in TIMING_COLUMNS}, nan_ok=True
+        )
+
+
+def test_existing_run_directory_is_not_overwritten(trained_run):
+    config = load_config(trained_run / "config.json")
+    with pytest.raises(RunExistsError, match="--resume"):
+        train(config, progress=False)
+
+
+def test_resume_refuses_options_that_contradict_the_saved_config(trained_run):
+    defaults = TrainCommand()
+    command = dataclasses.replace(defaults, resume=str(trained_run), width=64, steps=1200)
+    with pytest.raises(ConfigError, match="--width 64"):
+        resolve(command, defaults)
+    resumed = resolve(dataclasses.replace(defaults, resume=str(trained_run), steps=1200), defaults)
+    assert resumed.steps == 1200 and resumed.width == 16 and resumed.run_dir == str(trained_run)
+
+
+def copy_run(trained_run: Path, tmp_path: Path) -> Path:
+    run_dir = tmp_path / "copy"
+    shutil.copytree(trained_run, run_dir)
+    config = load_config(run_dir / "config.json")
+    (run_dir / "config.json").write_text(dataclasses.replace(config, run_dir=str(run_dir)).to_json())
+    return run_dir
+
+
+def test_mismatched_checkpoint_names_the_arrays(trained_run, tmp_path):
+    run_dir = copy_run(trained_run, tmp_path)
+    config = dataclasses.replace(load_config(run_dir / "config.json"), width=32)
+    with pytest.raises(CheckpointError, match=r"does not match this run: .*actor_params.*expected"):
+        train(config, resume=True, progress=False)
+
+
+def test_corrupt_checkpoint_is_an_error_not_a_fresh_start(trained_run, tmp_path):
+    run_dir = copy_run(trained_run, tmp_path)
+    for path in (run_dir / "checkpoints" / "600" / "state").rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="600 is unreadable"):
+        train(load_config(run_dir / "config.json"), resume=True, progress=False)
+
+
+def test_resume_without_checkpoint_is_an_error(trained_run, tmp_path):
+    run_dir = copy_run(trained_run, tmp_path)
+    shutil.rmtree(run_dir / "checkpoints")
+    with pytest.raises(CheckpointError, match="no checkpoint"):
+        train(load_config(run_dir / "config.json"), resume=True, progress=False)
+
+
+def test_config_file_errors_name_the_file_and_field(tmp_path):
+    path = tmp_path / "config.json"
+    path.write_text('{"env": "hopper", "learning_rate": 0.1}')
+    with pytest.raises(ConfigError, match=r"config.json: unknown TrainConfig fields \['learning_rate'\]"):
+        load_config(path)
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="not readable JSON"):
+        load_config(path)
+    with pytest.raises(ConfigError, match=r"--iteration\.chunk must be a positive"):
+        TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, chunk=0))
+
+
+def test_presets_follow_the_budget_convention():
+    paper, fast = PRESETS["paper"], PRESETS["fast"]
+    assert paper.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per env step"
+    assert paper.td3.batch_size == 100 and paper.iteration.capacity == 500_000
+    assert fast.copies > 1 and fast.td3.batch_size > paper.td3.batch_size
+    assert paper.steps_per_iteration(num_bodies=5) == 5 * 100, "steps count every body"
+
+
+def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    options = [f.name for f in dataclasses.fields(TrainCommand)] + ["iteration.random_steps", "td3.tau"]
+    for name in options:
+        assert "--" + name.replace("_", "-") in text, name
+    with pytest.raises(SystemExit):
+        main(["--preset", "fast", "--help"])
+    assert "(default: 16)" in capsys.readouterr().out, "--help shows the fast preset's copies"
+
+
+def test_cli_reports_an_existing_run_directory(trained_run, capsys):
+    assert main(["--env", "hopper", "--run-dir", str(trained_run)]) == 2
+    assert "exists; continue it with --resume" in capsys.readouterr().err
+
+
+def test_make_train_passes_options_through():
+    command = subprocess.run(
+        ["make", "-n", "train", "ENV=walker", "ALGO=smp", "SEED=3", "STEPS=1000", "PRESET=fast"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[1],
+    ).stdout
+    for flag in ("--env walker", "--algo smp", "--seed 3", "--steps 1000", "--preset fast"):
+        assert flag in command
