@@ -144,7 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Evaluate the newest checkpoint of a training run deterministically (no exploration "
         "noise): per body, the mean and standard deviation of the return and the episode length.",
     )
-    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="run directory written by swat_jax.train")
+    parser.add_argument(
+        "run_dir", type=Path, metavar="RUN_DIR", help="run directory written by swat_jax.train"
+    )
     parser.add_argument(
         "--split",
         choices=SPLITS,
@@ -174,7 +176,9 @@ def run(args: argparse.Namespace) -> str:
     results = []
     for body in bodies:
         print(f"evaluating {Path(body).stem} ...", file=sys.stderr)
-        results.append(evaluate_body(policy, body, episodes=args.episodes, seed=args.seed, record=bool(args.video)))
+        results.append(
+            evaluate_body(policy, body, episodes=args.episodes, seed=args.seed, record=bool(args.video))
+        )
     if args.video:
         from swat_jax.render import render_rollout
 

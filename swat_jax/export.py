@@ -344,6 +344,8 @@ def load(path: str | Path) -> ExportedPolicy:
         program = archive[PROGRAM_KEY]
     try:
         exported = jax.export.deserialize(bytearray(program.tobytes()))
+    except ImportError:
+        raise  # flatbuffers, which jax needs to read any exported program, is not installed
     except Exception as error:
         raise ExportError(
             f"{path}: its program cannot be read by jax {jax.__version__} ({type(error).__name__}: {error}); "

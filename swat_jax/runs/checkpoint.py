@@ -35,7 +35,11 @@ class CheckpointError(RuntimeError):
 
 def flatten(tree: Any) -> dict[str, np.ndarray | jax.Array]:
     """The non-empty arrays of ``tree`` by their key path (``.learner.actor_params['params']...``)."""
-    return {jax.tree_util.keystr(path): leaf for path, leaf in jax.tree_util.tree_leaves_with_path(tree) if leaf.size}
+    return {
+        jax.tree_util.keystr(path): leaf
+        for path, leaf in jax.tree_util.tree_leaves_with_path(tree)
+        if leaf.size
+    }
 
 
 def unflatten(template: Any, arrays: dict[str, Any]) -> Any:
@@ -87,13 +91,13 @@ class Checkpoints:
         saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
         expected = manifest(template)
         if saved != expected:
-            raise CheckpointError(f"{self._path(step)} does not match this run: {_differences(saved, expected)}")
+            raise CheckpointError(
+                f"{self._path(step)} does not match this run: {_differences(saved, expected)}"
+            )
         abstract = {
             key: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for key, leaf in flatten(template).items()
         }
-        restored = self._read(
-            step, state=ocp.args.StandardRestore(abstract), info=ocp.args.JsonRestore()
-        )
+        restored = self._read(step, state=ocp.args.StandardRestore(abstract), info=ocp.args.JsonRestore())
         return unflatten(template, restored["state"]), dict(restored["info"])
 
     def info(self) -> dict[str, Any]:
@@ -139,6 +143,10 @@ def _differences(saved: dict[str, list], expected: dict[str, list]) -> str:
         if key in saved and saved[key] != expected[key]
     ]
     more = f" (and {len(lines) - MAX_LISTED} more)" if len(lines) > MAX_LISTED else ""
-    return "; ".join(lines[:MAX_LISTED]) + more + (
-        ". Was config.json edited, or the code changed since it was written? Start a new run with --overwrite"
+    return (
+        "; ".join(lines[:MAX_LISTED])
+        + more
+        + (
+            ". Was config.json edited, or the code changed since it was written? Start a new run with --overwrite"
+        )
     )

@@ -57,9 +57,9 @@ class TrainConfig:
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
     copies: int = 1
     """Parallel environment copies per body."""
-    iteration: IterationConfig = IterationConfig()
+    iteration: IterationConfig = dataclasses.field(default_factory=IterationConfig)
     """One jitted iteration: per-copy steps collected (chunk), updates, random steps, noise, replay capacity."""
-    td3: TD3Config = TD3Config()
+    td3: TD3Config = dataclasses.field(default_factory=TD3Config)
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
     width: int | None = None
     """Transformer model width; None keeps the algorithm's (128)."""
@@ -94,7 +94,9 @@ class TrainConfig:
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
         if self.iteration.random_steps < 0:
-            raise ConfigError(f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}")
+            raise ConfigError(
+                f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"
+            )
         if self.iteration.capacity < self.copies:
             raise ConfigError(
                 f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "

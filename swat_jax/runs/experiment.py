@@ -48,7 +48,9 @@ class Experiment:
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments, from ``config.seed``."""
-        return init_train_state(self.env, self.learner, self.config.iteration, jax.random.PRNGKey(self.config.seed))
+        return init_train_state(
+            self.env, self.learner, self.config.iteration, jax.random.PRNGKey(self.config.seed)
+        )
 
     def state_shapes(self) -> TrainState:
         """The shapes and dtypes of :meth:`init_state`, without allocating anything."""
