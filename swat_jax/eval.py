@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from swat_jax.cli import ERROR_STATUS, positive_int
 from swat_jax.envs.body import BodyEnv
 from swat_jax.morphology import MorphologyError, get_set, load, pad_structures
 from swat_jax.networks import check_structures
@@ -26,7 +27,6 @@ from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
 from swat_jax.runs.experiment import TrainedPolicy, load_policy
 
-ERROR_STATUS = 2
 SPLITS = ("train", "test", "all")
 
 
@@ -130,13 +130,6 @@ def format_table(results: Sequence[BodyEvaluation], episodes: int) -> str:
     return "\n".join(lines)
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command-line parser."""
     parser = argparse.ArgumentParser(
@@ -160,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME_OR_PATH",
         help="evaluate these bodies (benchmark names or MJCF paths) instead of a split",
     )
-    parser.add_argument("--episodes", type=_positive_int, default=100, help="episodes per body (default 100)")
+    parser.add_argument("--episodes", type=positive_int, default=100, help="episodes per body (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise (default 0)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of a table")
     parser.add_argument(

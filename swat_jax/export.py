@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 import jax
 import numpy as np
 
+from swat_jax.cli import ERROR_STATUS, positive_int
+
 if TYPE_CHECKING:
     from swat_jax.morphology import StructureBatch
     from swat_jax.networks import LimbNetwork, Params
@@ -49,8 +51,6 @@ STRUCTURE_PREFIX = "structure."
 PLATFORMS = ("cpu", "cuda")
 """Default platforms compiled into the file: one file runs on CPU and on NVIDIA GPUs."""
 KNOWN_PLATFORMS = ("cpu", "cuda", "rocm", "tpu")
-ERROR_STATUS = 2
-"""Exit status for a bad run directory, output name or option."""
 WRITE_STATUS = 1
 """Exit status when the file cannot be written."""
 
@@ -403,13 +403,6 @@ def _metadata(path: Path, archive: Any) -> dict[str, Any]:
     return metadata
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return value
-
-
 def _platform_list(text: str) -> tuple[str, ...]:
     try:
         return _checked_platforms([part.strip() for part in text.split(",") if part.strip()])
@@ -429,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-o", "--output", type=Path, required=True, help=f"policy file to write ({SUFFIX})")
     parser.add_argument(
         "--max-limbs",
-        type=_positive_int,
+        type=positive_int,
         metavar="N",
         help="limb count every input is padded to (default: the largest body of the run's set, train and test)",
     )

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from swat_jax.cli import ERROR_STATUS, positive_int
 from swat_jax.envs.body import BodyEnv, EnvState
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.picture import (
@@ -43,8 +44,6 @@ POLICIES = ("random", "zero")
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MAX_GIF_FPS = 50
 """GIF frame delays are whole hundredths of a second and viewers stretch delays under 0.02 s."""
-ERROR_STATUS = 2
-"""Exit status for a bad body, output name or option."""
 RENDERING_STATUS = 1
 """Exit status when no OpenGL context can be created or the file cannot be written."""
 
@@ -263,13 +262,6 @@ def render_rollout(
     return path
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command-line parser."""
     parser = argparse.ArgumentParser(
@@ -284,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="benchmark body name (python -m swat_jax.morphology list) or MJCF path",
     )
     parser.add_argument("-o", "--output", type=Path, required=True, help="video file to write: .mp4 or .gif")
-    parser.add_argument("--steps", type=_positive_int, default=200, help="environment steps (default 200)")
+    parser.add_argument("--steps", type=positive_int, default=200, help="environment steps (default 200)")
     parser.add_argument(
         "--policy",
         choices=POLICIES,
@@ -292,15 +284,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="actions: uniform in [-1, 1] or zeros (default random)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise and actions (default 0)")
+    parser.add_argument("--width", type=positive_int, default=480, help="frame width in pixels (default 480)")
     parser.add_argument(
-        "--width", type=_positive_int, default=480, help="frame width in pixels (default 480)"
-    )
-    parser.add_argument(
-        "--height", type=_positive_int, default=360, help="frame height in pixels (default 360)"
+        "--height", type=positive_int, default=360, help="frame height in pixels (default 360)"
     )
     parser.add_argument(
         "--fps",
-        type=_positive_int,
+        type=positive_int,
         help="playback frames per second (default: real time, 1 / the body's control step; at most 50 for GIF)",
     )
     return parser

@@ -31,6 +31,7 @@ import numpy as np
 import tyro
 from tqdm import tqdm
 
+from swat_jax.cli import ERROR_STATUS
 from swat_jax.envs.multi_task import EpisodeStats
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
@@ -40,7 +41,6 @@ from swat_jax.runs.metrics import MetricsWriter
 from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
 
-ERROR_STATUS = 2
 LOSSES = ("critic_loss", "actor_loss")
 RESUMABLE_FIELDS = ("steps", "run_dir")
 """Fields ``--resume`` may change; every other field is the run's own."""
@@ -138,11 +138,10 @@ def train(
     Raises:
         ConfigError, CheckpointError, MemoryError: with a message that says what to change.
     """
-    run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
     experiment = Experiment.build(config)
     env = experiment.env
     print(
-        f"run {run_dir}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
+        f"run {config.directory()}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
         f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
         f"{env.max_limbs} limbs max"
     )
@@ -156,6 +155,7 @@ def train(
             flag="--iteration.capacity",
         )
     )
+    run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
         if resume:

@@ -7,6 +7,7 @@ import shutil
 import signal
 import struct
 import subprocess
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +15,12 @@ import pytest
 from conftest import tiny_train_config
 from tensorboardX.proto import event_pb2
 
+from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
-from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.config import PRESETS, Algorithm, ConfigError, TrainConfig, load_config
 from swat_jax.runs.experiment import Experiment, load_policy
 from swat_jax.runs.metrics import read_metrics
+from swat_jax.td3.iteration import IterationConfig
 from swat_jax.train import RunExistsError, TrainCommand, main, resolve, train
 
 TIMING_COLUMNS = {"steps_per_second"}
@@ -149,6 +152,10 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
         TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, chunk=0))
 
 
+def test_every_named_network_is_an_algo_choice():
+    assert typing.get_args(Algorithm) == tuple(NAMED_VARIANTS)
+
+
 def test_presets_follow_the_budget_convention():
     paper, fast = PRESETS["paper"], PRESETS["fast"]
     assert paper.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per env step"
@@ -185,3 +192,11 @@ def test_make_train_passes_options_through():
     ).stdout
     for flag in ("--env walker", "--algo smp", "--seed 3", "--steps 1000", "--preset fast"):
         assert flag in command
+
+
+def test_replay_too_large_stops_before_anything_is_written(hopper_folder, tmp_path):
+    huge = IterationConfig(chunk=50, updates=20, random_steps=100, capacity=10**12)
+    config = tiny_train_config(tmp_path / "huge", hopper_folder, iteration=huge)
+    with pytest.raises(MemoryError, match=r"lower --iteration\.capacity to at most"):
+        train(config, progress=False)
+    assert not (tmp_path / "huge").exists()

@@ -1,0 +1,111 @@
+"""End-to-end training throughput of the presets: environment steps and update work per second of wall clock.
+
+For each preset (and any ``--copies`` variants of ``fast``), the script builds the run's experiment,
+compiles its training iteration (reported separately), runs one warm-up iteration and then times
+``--iterations`` iterations; the policy acts from the first step (``random_steps=0``) so the timed
+iterations are the steady state. Reported: environment steps per second summed over bodies, sampled
+transitions per second of TD3 update work (updates x batch x bodies / s), and both as ratios to the
+``paper`` preset measured in the same run.
+
+    python experiments/preset_benchmark.py [--env hopper] [--algo swat] [--iterations 3]
+        [--capacity 100000] [--fast-copies 16 64]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import jax
+from machine import cpu_model
+
+from swat_jax.runs.config import PRESETS, TrainConfig
+from swat_jax.runs.experiment import Experiment
+
+
+@dataclasses.dataclass(frozen=True)
+class Measurement:
+    label: str
+    config: TrainConfig
+    compile_seconds: float
+    env_steps_per_second: float
+    transitions_per_second: float
+
+
+def measure(label: str, config: TrainConfig, iterations: int) -> Measurement:
+    """Compile, warm up, and time ``iterations`` training iterations of ``config``."""
+    experiment = Experiment.build(config)
+    state = experiment.init_state()
+    start = time.perf_counter()
+    iteration = experiment.iteration().lower(state).compile()
+    compile_seconds = time.perf_counter() - start
+    state, _ = iteration(state)
+    jax.block_until_ready(state)
+    start = time.perf_counter()
+    for _ in range(iterations):
+        state, _ = iteration(state)
+    jax.block_until_ready(state)
+    seconds = time.perf_counter() - start
+    bodies = experiment.env.num_bodies
+    updates = iterations * config.iteration.updates
+    return Measurement(
+        label,
+        config,
+        compile_seconds,
+        iterations * config.steps_per_iteration(bodies) / seconds,
+        updates * config.td3.batch_size * bodies / seconds,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
+    parser.add_argument("--algo", default="swat", help="network (default swat, paper-sized)")
+    parser.add_argument("--iterations", type=int, default=3, help="timed iterations per preset (default 3)")
+    parser.add_argument("--capacity", type=int, default=100_000, help="replay rows per body (default 100000)")
+    parser.add_argument(
+        "--fast-copies", type=int, nargs="*", default=[], help="also time fast with these copy counts"
+    )
+    args = parser.parse_args()
+
+    def configured(preset: str, **changes) -> TrainConfig:
+        base = PRESETS[preset]
+        iteration = dataclasses.replace(base.iteration, random_steps=0, capacity=args.capacity)
+        return dataclasses.replace(base, env=args.env, algo=args.algo, iteration=iteration, **changes)
+
+    runs = [("paper", configured("paper")), ("fast", configured("fast"))]
+    runs += [(f"fast, {n} copies", configured("fast", copies=n)) for n in args.fast_copies]
+    results = []
+    for label, config in runs:
+        results.append(measure(label, config, args.iterations))
+        r = results[-1]
+        print(
+            f"{label}: compile {r.compile_seconds:.0f} s, {r.env_steps_per_second:,.0f} env steps/s",
+            flush=True,
+        )
+
+    paper = results[0]
+    device = jax.devices()[0]
+    print(
+        f"\n{args.env}, {args.algo}; {device.platform}: {cpu_model() if device.platform == 'cpu' else device.device_kind}"
+    )
+    print(
+        "\n| preset | copies | chunk | updates / iteration | batch per body | compile (s) "
+        "| env steps/s | update transitions/s | env steps/s vs paper | transitions/s vs paper |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        c = r.config
+        print(
+            f"| {r.label} | {c.copies} | {c.iteration.chunk} | {c.iteration.updates} | {c.td3.batch_size} "
+            f"| {r.compile_seconds:.0f} | {r.env_steps_per_second:,.0f} | {r.transitions_per_second:,.0f} "
+            f"| {r.env_steps_per_second / paper.env_steps_per_second:.2f} "
+            f"| {r.transitions_per_second / paper.transitions_per_second:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
