@@ -73,9 +73,10 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, h
         if iterations == 3:
             signal.raise_signal(signal.SIGINT)
 
+    handler = signal.getsignal(signal.SIGINT)
     stopped = train(config, progress=False, after_iteration=interrupt)
     assert stopped.interrupted and stopped.env_steps == 300
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler, "the handler is restored"
+    assert signal.getsignal(signal.SIGINT) is handler, "the previous handler is restored"
     finished = train(config, resume=True, progress=False)
     assert not finished.interrupted and finished.env_steps == 600
 
@@ -148,6 +149,8 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
     path.write_text("{not json")
     with pytest.raises(ConfigError, match="not readable JSON"):
         load_config(path)
+    with pytest.raises(ConfigError, match="--env: unknown environment set 'hoper'; valid sets: hopper"):
+        TrainConfig(env="hoper")
     with pytest.raises(ConfigError, match=r"--iteration\.chunk must be a positive"):
         TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, chunk=0))
 
@@ -200,3 +203,11 @@ def test_replay_too_large_stops_before_anything_is_written(hopper_folder, tmp_pa
     with pytest.raises(MemoryError, match=r"lower --iteration\.capacity to at most"):
         train(config, progress=False)
     assert not (tmp_path / "huge").exists()
+
+
+def test_a_folder_environment_is_stored_absolute(hopper_folder, monkeypatch):
+    monkeypatch.chdir(hopper_folder.parent)
+    config = TrainConfig(env=hopper_folder.name)
+    assert config.env == str(hopper_folder.resolve())
+    assert config.bodies() == (str(hopper_folder.resolve() / "hopper_3.xml"),)
+    assert TrainConfig(env="Hopper++").env == "Hopper++", "set names stay names"

@@ -19,7 +19,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
-from swat_jax.morphology import get_set
+from swat_jax.morphology import SETS, get_set
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, network_config
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
@@ -83,6 +83,13 @@ class TrainConfig:
     """Run directory; empty means runs/<env>-<algo>-seed<seed>."""
 
     def __post_init__(self) -> None:
+        try:
+            environment_set = get_set(self.env)
+        except ValueError as error:
+            raise ConfigError(f"--env: {error}") from error
+        if SETS.get(environment_set.name) is not environment_set:
+            # A folder of MJCF files: stored absolute so the run resumes and evaluates from anywhere.
+            object.__setattr__(self, "env", str(Path(self.env).expanduser().resolve()))
         if self.algo not in NAMED_VARIANTS:
             raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
         if self.preset not in PRESET_NAMES:
@@ -114,10 +121,7 @@ class TrainConfig:
 
     def bodies(self) -> tuple[str, ...]:
         """The train bodies of ``env`` (names, or MJCF paths for a folder)."""
-        try:
-            return get_set(self.env).split("train")
-        except ValueError as error:
-            raise ConfigError(str(error)) from error
+        return get_set(self.env).split("train")
 
     def directory(self) -> Path:
         """The run directory."""
