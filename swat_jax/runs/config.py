@@ -50,7 +50,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = "paper"
-    """Sizes below that this run started from: paper (1 copy per task, 1 update per step) or fast (many copies)."""
+    """Preset that gave this run its defaults: paper (1 copy per body, 1 update per step) or fast (16 copies, batch 256)."""
     seed: int = 0
     """Seed of network initialisation, resets, exploration and replay sampling."""
     steps: int = 10_000_000
