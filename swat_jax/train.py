@@ -1,10 +1,11 @@
 """Train one policy on every body of an environment set: ``python -m swat_jax.train --env hopper``.
 
 The host loop only calls the jitted iteration (collect a chunk in every copy of every body, then the
-chunk's TD3 updates, see :mod:`swat_jax.td3.iteration`), writes metrics every ``log_interval`` steps and
-checkpoints every ``checkpoint_interval`` steps. Ctrl-C or SIGTERM finishes the running iteration,
-writes a checkpoint and exits; ``--resume RUN_DIR`` continues from the newest checkpoint, and on the
-same machine the continued run equals an uninterrupted one exactly.
+chunk's TD3 updates, see :mod:`swat_jax.td3.iteration`), one at a time, writes metrics every
+``log_interval`` steps and checkpoints every ``checkpoint_interval`` steps. Ctrl-C or SIGTERM finishes
+the running iteration, writes a checkpoint and exits (a second one aborts at once); ``--resume RUN_DIR``
+continues from the newest checkpoint, and on the same machine the continued run equals an
+uninterrupted one exactly.
 
 Run directory::
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import shutil
 import signal
 import sys
@@ -42,6 +44,8 @@ from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
 
 LOSSES = ("critic_loss", "actor_loss")
+INTERRUPTED_STATUS = 128 + signal.SIGINT
+"""Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
 RESUMABLE_FIELDS = ("steps", "run_dir")
 """Fields ``--resume`` may change; every other field is the run's own."""
 
@@ -74,20 +78,25 @@ class RunExistsError(ConfigError):
 class StopRequest:
     """Set by SIGINT / SIGTERM: the loop checkpoints after the running iteration and returns.
 
-    A second Ctrl-C aborts at once, without a checkpoint.
+    A second signal aborts at once, without a checkpoint: the process exits with 128 + the signal's
+    number (130 for Ctrl-C) without waiting for the computation in flight.
     """
 
     def __init__(self) -> None:
         self.requested = False
 
     def __call__(self, signum: int, frame: Any) -> None:
+        name = signal.Signals(signum).name
         if self.requested:
-            raise KeyboardInterrupt
+            print(f"\n{name} again: aborted without a checkpoint", file=sys.stderr, flush=True)
+            sys.stdout.flush()
+            os._exit(128 + signum)
         self.requested = True
         print(
-            f"\n{signal.Signals(signum).name}: stopping after this iteration and writing a checkpoint "
+            f"\n{name}: stopping after this iteration and writing a checkpoint "
             "(Ctrl-C again aborts without one)",
             file=sys.stderr,
+            flush=True,
         )
 
 
@@ -158,10 +167,12 @@ def train(
     run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
-        if resume:
-            state, info = checkpoints.restore(experiment.state_shapes())
+        if resume and checkpoints.latest_step() is not None:
+            state, info = experiment.restore_state(checkpoints)
             print(f"resumed from {checkpoints.directory / str(info['env_steps'])}")
         else:
+            if resume:
+                print(f"no checkpoint in {checkpoints.directory} yet: starting the run from its saved config")
             state, info = experiment.init_state(), {"env_steps": 0, "iterations": 0, "seconds": 0.0}
         metrics = MetricsWriter(run_dir, resumed_at=info["env_steps"] if resume else None)
         try:
@@ -222,11 +233,12 @@ def _loop(
     try:
         while done < total and not stop.requested:
             state, step_metrics = iteration(state)
+            # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
+            jax.block_until_ready(step_metrics)
             losses.add(step_metrics)
             done, timed = done + 1, timed + 1
             bar.update(per_iteration)
             if done % log_every == 0 or done == total:
-                jax.block_until_ready(state.env.episodes)
                 now = time.perf_counter()
                 seconds += now - window_start
                 row = {
@@ -339,6 +351,17 @@ def resolve(command: TrainCommand, defaults: TrainCommand) -> TrainConfig:
     return dataclasses.replace(saved, steps=steps, run_dir=str(run_dir))
 
 
+def _interrupted_before_training(command: TrainCommand) -> str:
+    """What a Ctrl-C before the first iteration (loading, tracing, compiling) leaves, and how to go on."""
+    run_dir = Path(command.resume) if command.resume else command.config().directory()
+    if (run_dir / CONFIG_FILE).exists():
+        return (
+            f"interrupted before training started; {run_dir} keeps its config. Start it with: "
+            f"python -m swat_jax.train --resume {run_dir}"
+        )
+    return "interrupted before training started; nothing was written"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and train; returns the exit status (2 for a bad option or run directory)."""
     argv = sys.argv[1:] if argv is None else argv
@@ -352,6 +375,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, CheckpointError, MemoryError) as error:
         print(f"error: {error}", file=sys.stderr)
         return ERROR_STATUS
+    except KeyboardInterrupt:
+        print(f"\n{_interrupted_before_training(command)}", file=sys.stderr)
+        return INTERRUPTED_STATUS
     if result.interrupted:
         print(
             f"stopped at {result.env_steps:,} steps; continue with: python -m swat_jax.train --resume {result.run_dir}"

@@ -35,6 +35,27 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
     return TrainConfig(**{**fields, **overrides})
 
 
+def train_flags(config) -> list[str]:
+    """``python -m swat_jax.train`` flags that build ``config`` (every field that differs from the paper preset)."""
+    import dataclasses
+
+    from swat_jax.runs.config import PRESETS
+
+    def flags(value, default, prefix: str) -> list[str]:
+        if dataclasses.is_dataclass(value):
+            return [
+                flag
+                for field in dataclasses.fields(value)
+                for flag in flags(
+                    getattr(value, field.name), getattr(default, field.name), f"{prefix}{field.name}."
+                )
+            ]
+        name = "--" + prefix.rstrip(".").replace("_", "-")
+        return [] if value == default else [name, str(value)]
+
+    return flags(config, PRESETS["paper"], "")
+
+
 @pytest.fixture(scope="session")
 def hopper_folder(tmp_path_factory) -> Path:
     """A folder-of-MJCF environment set holding hopper_3 only."""

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
 import signal
 import struct
 import subprocess
+import sys
+import threading
+import time
 import typing
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import tiny_train_config
+from conftest import tiny_train_config, train_flags
 from tensorboardX.proto import event_pb2
 
 from swat_jax.networks import NAMED_VARIANTS
@@ -134,11 +138,112 @@ def test_corrupt_checkpoint_is_an_error_not_a_fresh_start(trained_run, tmp_path)
         train(load_config(run_dir / "config.json"), resume=True, progress=False)
 
 
-def test_resume_without_checkpoint_is_an_error(trained_run, tmp_path):
+def test_resume_without_checkpoint_starts_from_the_saved_config(trained_run, tmp_path):
     run_dir = copy_run(trained_run, tmp_path)
     shutil.rmtree(run_dir / "checkpoints")
-    with pytest.raises(CheckpointError, match="no checkpoint"):
-        train(load_config(run_dir / "config.json"), resume=True, progress=False)
+    config = dataclasses.replace(load_config(run_dir / "config.json"), steps=100)
+    result = train(config, resume=True, progress=False)
+    assert not result.interrupted and result.env_steps == 100
+    assert [row["env_steps"] for row in read_metrics(run_dir)] == [100], "the old rows are dropped"
+
+
+def test_a_resumed_run_compiles_the_fresh_runs_program(trained_run):
+    """Fresh and restored states lower to the same program, so a resume hits the compilation cache."""
+    experiment = Experiment.build(load_config(trained_run / "config.json"))
+    checkpoints = Checkpoints(trained_run)
+    try:
+        restored, _ = experiment.restore_state(checkpoints)
+    finally:
+        checkpoints.close()
+    fresh = experiment.init_state()
+    iteration = experiment.iteration()
+    assert iteration.lower(restored).as_text() == iteration.lower(fresh).as_text()
+
+
+def test_a_stop_request_is_honoured_within_one_iteration(trained_run, hopper_folder, tmp_path):
+    """A signal sent while iterations run stops after the running one (none queued behind it)."""
+    steps = 6000  # 60 iterations, one metrics row: nothing else waits for the device
+    config = tiny_train_config(
+        tmp_path / "stopped", hopper_folder, steps=steps, log_interval=steps, checkpoint_interval=steps
+    )
+    finished: list[int] = []
+    at_signal: list[int] = []
+
+    def send_stop() -> None:
+        at_signal.append(len(finished))
+        signal.raise_signal(signal.SIGINT)
+
+    def record(iterations: int) -> None:
+        finished.append(iterations)
+        if iterations == 1:
+            threading.Timer(1.0, send_stop).start()
+
+    result = train(config, progress=False, after_iteration=record)
+    assert at_signal, "the stop request was sent"
+    assert result.interrupted and result.env_steps < steps
+    assert len(finished) <= at_signal[0] + 2, (
+        f"{at_signal[0]} iterations had finished when the stop was requested, {len(finished)} ran"
+    )
+    assert final_state(tmp_path / "stopped")[1]["iterations"] == len(finished)
+
+
+def run_training_command(flags: list[str], signals_after: dict[str, list[float]], timeout: float = 120):
+    """``python -m swat_jax.train FLAGS``; on the first stdout line containing a key, SIGINT after each delay.
+
+    Returns (exit status, stdout, stderr, seconds from the last SIGINT to the exit).
+    """
+    process = subprocess.Popen(
+        [sys.executable, "-m", "swat_jax.train", *flags],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    lines, last_signal = [], None
+    for line in process.stdout:
+        lines.append(line)
+        for key, delays in signals_after.items():
+            if key in line:
+                for delay in delays:
+                    time.sleep(delay)
+                    process.send_signal(signal.SIGINT)
+                    last_signal = time.perf_counter()
+                break
+        else:
+            continue
+        break
+    status = process.wait(timeout)
+    exit_time = time.perf_counter()
+    lines.append(process.stdout.read())
+    return status, "".join(lines), process.stderr.read(), exit_time - (last_signal or exit_time)
+
+
+def test_a_second_ctrl_c_aborts_at_once(trained_run, hopper_folder, tmp_path):
+    """(``trained_run`` first puts the tiny run's program in the compilation cache.)"""
+    config = tiny_train_config(tmp_path / "aborted", hopper_folder, steps=100_000, log_interval=100_000)
+    status, _, stderr, seconds = run_training_command(
+        [*train_flags(config), "--no-progress"], {"compiled in": [0.5, 0.3]}
+    )
+    assert status == 130, stderr
+    assert "aborted without a checkpoint" in stderr and "Traceback" not in stderr
+    assert seconds < 5
+    assert not (tmp_path / "aborted" / "checkpoints").exists() or not any(
+        p.name.isdigit() for p in (tmp_path / "aborted" / "checkpoints").iterdir()
+    )
+
+
+def test_ctrl_c_while_compiling_exits_cleanly_and_the_run_can_be_started(
+    trained_run, hopper_folder, tmp_path
+):
+    config = tiny_train_config(tmp_path / "early", hopper_folder, steps=100)
+    status, _, stderr, _ = run_training_command(
+        train_flags(config), {"compiling the training iteration": [0.0]}
+    )
+    assert status == 130, stderr
+    assert "Traceback" not in stderr
+    assert f"--resume {tmp_path / 'early'}" in stderr
+    result = train(config, resume=True, progress=False)
+    assert not result.interrupted and result.env_steps == 100
 
 
 def test_config_file_errors_name_the_file_and_field(tmp_path):

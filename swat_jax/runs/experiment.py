@@ -50,11 +50,14 @@ class Experiment:
         """Fresh networks, empty replay buffers and reset environments, from ``config.seed``.
 
         Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies).
-        The arrays are committed to the default device, as restored checkpoints are: the compiled
-        iteration (and its persistent-cache entry) differs between committed and uncommitted inputs.
         """
-        state = jax.jit(self._initial_state)(jax.random.PRNGKey(self.config.seed))
-        return jax.device_put(state, jax.devices()[0])
+        return _committed(jax.jit(self._initial_state)(jax.random.PRNGKey(self.config.seed)))
+
+    def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, dict[str, Any]]:
+        """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one,
+        and its info (CheckpointError if it is missing, unreadable or does not match)."""
+        state, info = checkpoints.restore(self.state_shapes())
+        return _committed(state), info
 
     def state_shapes(self) -> TrainState:
         """The shapes and dtypes of :meth:`init_state`, without allocating anything."""
@@ -74,6 +77,16 @@ class Experiment:
             "max_limbs": self.env.max_limbs,
             "observation_features": self.env.observation_features,
         }
+
+
+def _committed(state: TrainState) -> TrainState:
+    """Every array of ``state`` committed to the default device.
+
+    The compiled iteration, and so its persistent-cache key, differs between committed and uncommitted
+    inputs (their buffers are donated differently). Restored checkpoints mix both (zero-size MJX arrays
+    are rebuilt uncommitted), so fresh and resumed runs go through here to share one cache entry.
+    """
+    return jax.device_put(state, jax.devices()[0])
 
 
 @dataclasses.dataclass(frozen=True)
