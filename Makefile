@@ -2,11 +2,13 @@ PYTHON ?= python3
 ENV ?= animal_walkers
 ALGO ?= swat
 SEED ?= 0
+SEEDS ?= 1
 STEPS ?= 10000000
 PRESET ?= paper
 ARGS ?=
+PY ?= 3.12
 
-.PHONY: install test lint format morphologies train
+.PHONY: install test lint format morphologies train wheels
 
 install:  ## install swat_jax (editable) with the test and lint tools
 	$(PYTHON) -m pip install -e ".[dev]"
@@ -15,15 +17,18 @@ test:  ## run the whole test suite (what CI runs)
 	$(PYTHON) -m pytest -q -n 2
 
 lint:  ## static checks
-	$(PYTHON) -m ruff check swat_jax tests experiments
-	$(PYTHON) -m ruff format --check swat_jax tests experiments
+	$(PYTHON) -m ruff check swat_jax tests experiments scripts
+	$(PYTHON) -m ruff format --check swat_jax tests experiments scripts
 
 format:  ## apply the formatter and safe lint fixes
-	$(PYTHON) -m ruff check --fix swat_jax tests experiments
-	$(PYTHON) -m ruff format swat_jax tests experiments
+	$(PYTHON) -m ruff check --fix swat_jax tests experiments scripts
+	$(PYTHON) -m ruff format swat_jax tests experiments scripts
 
 morphologies:  ## regenerate the variant bodies in morphologies/ from the intact ones
 	$(PYTHON) -m swat_jax.morphology.generate
 
-train:  ## train: make train ENV=<set or MJCF folder> ALGO= SEED= STEPS= PRESET=paper|fast ARGS="<more flags>"
-	$(PYTHON) -m swat_jax.train --preset $(PRESET) --env $(ENV) --algo $(ALGO) --seed $(SEED) --steps $(STEPS) $(ARGS)
+train:  ## train: make train ENV=<set or MJCF folder> ALGO= SEED= SEEDS= STEPS= PRESET=paper|fast ARGS="<more flags>"
+	$(PYTHON) -m swat_jax.train --preset $(PRESET) --env $(ENV) --algo $(ALGO) --seed $(SEED) --seeds $(SEEDS) --steps $(STEPS) $(ARGS)
+
+wheels:  ## download into .whl/ the wheels a CUDA JAX image lacks (pins from pyproject.toml), for Python $(PY) on x86-64 Linux
+	$(PYTHON) scripts/offline_wheels.py --python-version $(PY) --dest .whl

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import platform
 import resource
@@ -43,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from machine import cpu_model
+from machine import cpu_model, host_cores, host_memory_gib, software_versions
 
 from swat_jax.compilation_cache import cache_directory
 from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
@@ -159,24 +160,26 @@ def compile_worker(set_name: str, copies: int) -> dict[str, Any]:
 
 
 def info_worker() -> dict[str, Any]:
-    """Backend, device and versions."""
+    """Backend, device, device count and versions (``versions``: every installed package that matters)."""
     device = jax.devices()[0]
     return {
         "platform": device.platform,
         "device": device.device_kind,
+        "device_count": jax.device_count(),
         "jax": jax.__version__,
         "mujoco": mujoco.__version__,
         "python": platform.python_version(),
+        "versions": software_versions(),
     }
 
 
-def run_worker(spec: dict[str, Any]) -> None:
+Worker = Callable[..., dict[str, Any]]
+WORKERS: dict[str, Worker] = {"info": info_worker, "throughput": throughput_worker, "compile": compile_worker}
+"""The measurements a worker process can run, by the ``kind`` of its spec."""
+
+
+def run_worker(spec: dict[str, Any], workers: dict[str, Worker] = WORKERS) -> None:
     """Run one measurement described by ``spec`` and print its result as the last line of JSON."""
-    workers: dict[str, Callable[..., dict[str, Any]]] = {
-        "info": info_worker,
-        "throughput": throughput_worker,
-        "compile": compile_worker,
-    }
     kind = spec.pop("kind")
     print(json.dumps(workers[kind](**spec)), flush=True)
 
@@ -184,23 +187,41 @@ def run_worker(spec: dict[str, Any]) -> None:
 # --- the orchestrating process (never touches the JAX backend) -----------------------------------------
 
 
-class WorkerError(RuntimeError):
-    """A worker process failed; ``out_of_memory`` tells an allocation failure from other errors."""
+def throughput_spec(set_name: str, copies: int, steps: int, repeats: int) -> dict[str, Any]:
+    """The worker spec of one :func:`throughput_worker` measurement."""
+    return {"kind": "throughput", "set_name": set_name, "copies": copies, "steps": steps, "repeats": repeats}
 
-    def __init__(self, message: str, out_of_memory: bool):
+
+class WorkerError(RuntimeError):
+    """A worker process failed or was not run; ``out_of_memory`` tells an allocation failure, ``timed_out``
+    a run stopped (or not started) for lack of time, from other errors."""
+
+    def __init__(self, message: str, out_of_memory: bool = False, timed_out: bool = False):
         super().__init__(message)
         self.out_of_memory = out_of_memory
+        self.timed_out = timed_out
 
 
-def in_subprocess(spec: dict[str, Any], environment: dict[str, str] | None = None) -> dict[str, Any]:
-    """Run ``spec`` in a fresh Python process of this script and return its result."""
-    completed = subprocess.run(
-        [sys.executable, __file__, "--worker", json.dumps(spec)],
-        capture_output=True,
-        text=True,
-        env=environment,
-        check=False,
-    )
+def in_subprocess(
+    spec: dict[str, Any],
+    environment: dict[str, str] | None = None,
+    *,
+    script: str = __file__,
+    timeout: float | None = None,
+) -> dict[str, Any]:
+    """Run ``spec`` in a fresh Python process of ``script`` (whose ``--worker`` runs :func:`run_worker`),
+    stopped after ``timeout`` seconds, and return its result."""
+    try:
+        completed = subprocess.run(
+            [sys.executable, script, "--worker", json.dumps(spec)],
+            capture_output=True,
+            text=True,
+            env=environment,
+            check=False,
+            timeout=timeout,
+        )
+    except subprocess.TimeoutExpired as error:
+        raise WorkerError(f"worker {spec} stopped after {timeout:.0f} s", timed_out=True) from error
     if completed.returncode != 0:
         tail = "\n".join(completed.stderr.strip().splitlines()[-15:])
         out_of_memory = any(marker in completed.stderr for marker in OUT_OF_MEMORY_MARKERS)
@@ -209,8 +230,8 @@ def in_subprocess(spec: dict[str, Any], environment: dict[str, str] | None = Non
 
 
 def machine_description(info: dict[str, Any]) -> str:
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    host = f"{cpu_model()}, {cores} cores, {os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE') / GIB:.0f} GiB"
+    cores, memory = host_cores(), host_memory_gib()
+    host = f"{cpu_model()}, {cores} cores, {memory:.0f} GiB"
     accelerator = "CPU only" if info["platform"] == "cpu" else f"{info['device']} ({info['platform']})"
     return (
         f"Machine: {host}; {accelerator}\n"
@@ -240,6 +261,14 @@ def c_steps_per_second(bodies: Sequence[str], steps: int, seed: int = 0) -> floa
     return len(bodies) * steps / seconds
 
 
+def c_steps_per_second_on_cores(bodies: Sequence[str], steps: int, processes: int) -> float:
+    """Env steps per second of every body on MuJoCo C in ``processes`` concurrent processes (one per core,
+    each running every body with its own random controls), summed over the processes."""
+    with multiprocessing.get_context("fork").Pool(processes) as pool:
+        rates = pool.starmap(c_steps_per_second, [(tuple(bodies), steps, seed) for seed in range(processes)])
+    return sum(rates)
+
+
 def progress(message: str, started: float) -> None:
     print(f"[{time.perf_counter() - started:7.1f} s] {message}", file=sys.stderr, flush=True)
 
@@ -249,27 +278,34 @@ def gib(value: float | None) -> str:
 
 
 def sweep_copies(
-    set_name: str, copies: Sequence[int], args: argparse.Namespace, started: float
-) -> list[dict[str, Any]]:
-    """Throughput rows for increasing copy counts; stops once throughput grows by less than ``--min-gain``
-    or a run runs out of memory."""
+    set_name: str,
+    copies: Sequence[int],
+    measure: Callable[[int], dict[str, Any]],
+    min_gain: float,
+    started: float,
+) -> tuple[list[dict[str, Any]], str]:
+    """Throughput rows for increasing copy counts, and why the sweep stopped ("" when every count ran).
+
+    ``measure(copies)`` times one configuration (a ``throughput_worker`` result). The sweep stops once
+    throughput grows by less than ``min_gain`` over the previous count, or a run runs out of memory or time.
+    """
     rows: list[dict[str, Any]] = []
     for count in sorted(copies):
         progress(f"{display_name(set_name)} x {count} copies: compiling and timing MJX", started)
-        spec = {"kind": "throughput", "set_name": set_name, "copies": count}
         try:
-            result = in_subprocess({**spec, "steps": args.steps, "repeats": args.repeats})
+            result = measure(count)
         except WorkerError as error:
-            if not error.out_of_memory:
+            if not (error.out_of_memory or error.timed_out):
                 raise
-            progress(f"{display_name(set_name)} x {count} copies: out of memory, sweep stops", started)
-            break
+            reason = "out of memory" if error.out_of_memory else "out of time"
+            progress(f"{display_name(set_name)} x {count} copies: {reason}, sweep stops", started)
+            return rows, f"{reason} at {count} copies"
         rows.append({"set": set_name, "copies": count, **result})
         progress(f"  {result['steps_per_second']:.0f} steps/s (compile {result['compile_s']:.1f} s)", started)
-        if len(rows) > 1 and result["steps_per_second"] < args.min_gain * rows[-2]["steps_per_second"]:
+        if len(rows) > 1 and result["steps_per_second"] < min_gain * rows[-2]["steps_per_second"]:
             progress(f"{display_name(set_name)}: throughput stopped growing, sweep stops", started)
-            break
-    return rows
+            return rows, f"throughput stopped growing at {count} copies"
+    return rows, ""
 
 
 def copies_for_set(set_name: str, copies: Sequence[int], largest_only_above: int) -> list[int]:
@@ -292,9 +328,13 @@ def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: 
     for set_name in args.sets:
         progress(f"{display_name(set_name)}: MuJoCo C, {args.c_steps} steps per body", started)
         c_speed = c_steps_per_second(train_bodies(set_name), args.c_steps)
-        for row in sweep_copies(
-            set_name, copies_for_set(set_name, copies, args.largest_only_above), args, started
-        ):
+
+        def measure(count: int, set_name: str = set_name) -> dict[str, Any]:
+            return in_subprocess(throughput_spec(set_name, count, args.steps, args.repeats))
+
+        set_copies = copies_for_set(set_name, copies, args.largest_only_above)
+        rows, _ = sweep_copies(set_name, set_copies, measure, args.min_gain, started)
+        for row in rows:
             name, mjx_speed = display_name(set_name), row["steps_per_second"]
             speed.append(
                 f"| {name} | {row['bodies']}x{row['max_limbs']} | {row['copies']} | {mjx_speed:,.0f} "

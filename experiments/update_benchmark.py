@@ -18,6 +18,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +27,7 @@ from machine import cpu_model
 
 from swat_jax.envs.observation import KINEMATIC_FEATURES
 from swat_jax.morphology import Morphology, StructureBatch, get_set, load, pad_structures
-from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.networks import NetworkConfig, make_actor_critic, network_config, param_count
 from swat_jax.td3.learner import Learner, LearnerState, TD3Config
 from swat_jax.td3.replay import Transitions
 
@@ -73,11 +74,14 @@ def update_loop(learner: Learner, updates: int) -> UpdateLoop:
     return run
 
 
-def compile_seconds(function: UpdateLoop, *args) -> tuple[Callable[..., LearnerState], float]:
-    """The jitted, compiled ``function`` for these arguments' shapes, and the trace + compile time."""
+def compile_seconds(function: UpdateLoop, *args) -> tuple[Callable[..., LearnerState], float, float]:
+    """The jitted, compiled ``function`` for these arguments' shapes, the trace (lower) seconds and the XLA
+    compile seconds."""
     start = time.perf_counter()
-    compiled = jax.jit(function).lower(*args).compile()
-    return compiled, time.perf_counter() - start
+    lowered = jax.jit(function).lower(*args)
+    traced = time.perf_counter()
+    compiled = lowered.compile()
+    return compiled, traced - start, time.perf_counter() - traced
 
 
 def median_seconds(run: Callable[[], LearnerState], repeats: int) -> float:
@@ -96,36 +100,80 @@ def task_slices(tree: Transitions | StructureBatch, tasks: int) -> list:
     return [jax.tree_util.tree_map(lambda leaf, k=k: leaf[k : k + 1], tree) for k in range(tasks)]
 
 
-def benchmark(set_name: str, network: str, batch: int, updates: int, repeats: int) -> dict[str, float]:
-    """Compile seconds and transitions per second of the vmapped and the one-task-at-a-time update."""
+class UpdateProblem(NamedTuple):
+    """The inputs of ``loop``: the learner state, a [T, batch] batch, the [T, L] structures and a key."""
+
+    loop: UpdateLoop
+    state: LearnerState
+    transitions: Transitions
+    structures: StructureBatch
+    rng: jax.Array
+
+
+def update_problem(set_name: str, network: NetworkConfig, batch: int, updates: int) -> UpdateProblem:
+    """A fresh learner of ``network`` on every training body of ``set_name``, random transitions [T, batch]
+    and the loop of ``updates`` updates."""
     bodies = [load(name) for name in get_set(set_name).split("train")]
     features = observation_features(bodies)
     structures = jax.tree_util.tree_map(jnp.asarray, pad_structures(bodies))
-    tasks = structures.limb_mask.shape[0]
     transitions = random_transitions(structures, batch, features)
-    actor, critic = make_actor_critic(network_config(network), obs_features=features)
+    actor, critic = make_actor_critic(network, obs_features=features)
     learner = Learner(actor, critic, TD3Config(batch_size=batch))
-    state, rng = learner.init(jax.random.key(0)), jax.random.key(1)
     loop = update_loop(learner, updates)
+    return UpdateProblem(loop, learner.init(jax.random.key(0)), transitions, structures, jax.random.key(1))
 
-    vmapped, vmapped_compile = compile_seconds(loop, state, transitions, structures, rng)
-    batches, structure_slices = task_slices(transitions, tasks), task_slices(structures, tasks)
-    one_task, one_task_compile = compile_seconds(loop, state, batches[0], structure_slices[0], rng)
 
-    def task_by_task() -> LearnerState:
-        task_state = state
-        for task_batch, task_structure in zip(batches, structure_slices, strict=True):
-            task_state = one_task(task_state, task_batch, task_structure, rng)
-        return task_state
+def vmapped_throughput(
+    set_name: str, network: NetworkConfig, batch: int, updates: int, repeats: int
+) -> dict[str, Any]:
+    """Trace and compile seconds and throughput of the update on all tasks of ``set_name`` at once.
 
-    transitions_per_call = tasks * batch * updates
+    Returns:
+        ``tasks``, ``actor_parameters``, ``critic_parameters``, ``trace_s``, ``compile_s``,
+        ``transitions_per_second`` (tasks x batch x updates / s) and ``updates_per_second``.
+    """
+    problem = update_problem(set_name, network, batch, updates)
+    compiled, trace_s, compile_s = compile_seconds(problem.loop, *problem[1:])
+    seconds = median_seconds(lambda: compiled(*problem[1:]), repeats)
+    tasks = problem.structures.limb_mask.shape[0]
     return {
         "tasks": tasks,
-        "vmapped compile": vmapped_compile,
-        "one-task compile": one_task_compile,
-        "vmapped": transitions_per_call
-        / median_seconds(lambda: vmapped(state, transitions, structures, rng), repeats),
-        "one-task": transitions_per_call / median_seconds(task_by_task, repeats),
+        "actor_parameters": param_count(problem.state.actor_params),
+        "critic_parameters": param_count(problem.state.critic_params),
+        "trace_s": trace_s,
+        "compile_s": compile_s,
+        "transitions_per_second": tasks * batch * updates / seconds,
+        "updates_per_second": updates / seconds,
+    }
+
+
+def benchmark(
+    set_name: str, network: NetworkConfig, batch: int, updates: int, repeats: int
+) -> dict[str, float]:
+    """Compile seconds and transitions per second of the vmapped and the one-task-at-a-time update."""
+    vmapped = vmapped_throughput(set_name, network, batch, updates, repeats)
+    problem = update_problem(set_name, network, batch, updates)
+    tasks = vmapped["tasks"]
+    batches, structure_slices = (
+        task_slices(problem.transitions, tasks),
+        task_slices(problem.structures, tasks),
+    )
+    one_task, trace_s, compile_s = compile_seconds(
+        problem.loop, problem.state, batches[0], structure_slices[0], problem.rng
+    )
+
+    def task_by_task() -> LearnerState:
+        task_state = problem.state
+        for task_batch, task_structure in zip(batches, structure_slices, strict=True):
+            task_state = one_task(task_state, task_batch, task_structure, problem.rng)
+        return task_state
+
+    return {
+        "tasks": tasks,
+        "vmapped compile": vmapped["trace_s"] + vmapped["compile_s"],
+        "one-task compile": trace_s + compile_s,
+        "vmapped": vmapped["transitions_per_second"],
+        "one-task": tasks * batch * updates / median_seconds(task_by_task, repeats),
     }
 
 
@@ -144,7 +192,7 @@ def main() -> None:
         f"CPU: {cpu_model()}; jax {jax.__version__} on {jax.devices()[0].platform}; "
         f"{args.updates} updates per call, {args.repeats} repeats"
     )
-    result = benchmark(args.set, args.network, args.batch, args.updates, args.repeats)
+    result = benchmark(args.set, network_config(args.network), args.batch, args.updates, args.repeats)
     print(
         "| set | network | tasks x batch | compile vmapped / one-task (s) | vmapped transitions/s "
         "| one-task-at-a-time transitions/s | vmapped / one-task |"

@@ -1,9 +1,11 @@
 """Evaluate a trained policy deterministically: ``python -m swat_jax.eval RUN_DIR [--split test]``.
 
-Every body runs ``--episodes`` episodes in parallel (one vmapped MJX program per body) from independent
-resets, with the actor's actions and no exploration noise, until each episode terminates or reaches the
-time limit (1000 steps). The bodies are the run's train bodies, its set's held-out test bodies
-(``--split test``, zero-shot: never seen in training), or any names and MJCF paths (``--bodies``).
+Every body runs ``--episodes`` episodes in parallel for every seed of the run (one MJX program per body,
+vmapped over seeds and episodes) from independent resets, with the actor's actions and no exploration
+noise, until each episode terminates or reaches the time limit (1000 steps). The bodies are the run's
+train bodies, its set's held-out test bodies (``--split test``, zero-shot: never seen in training), or
+any names and MJCF paths (``--bodies``). Several seeds are summarised as the mean and standard error
+over seeds of each seed's mean return (the paper's Tables 3-4).
 """
 
 from __future__ import annotations
@@ -11,98 +13,127 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from swat_jax.cli import ERROR_STATUS, positive_int
-from swat_jax.envs.body import BodyEnv
-from swat_jax.morphology import MorphologyError, get_set, load, pad_structures
-from swat_jax.networks import check_structures
+from swat_jax.envs.multi_task import MultiTaskEnv
+from swat_jax.morphology import MorphologyError, get_set, load
+from swat_jax.networks import StructureMismatch, check_structures
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
 from swat_jax.runs.experiment import TrainedPolicy, load_policy
+from swat_jax.td3.evaluation import make_evaluation
 
 SPLITS = ("train", "test", "all")
 
 
 @dataclasses.dataclass(frozen=True)
 class BodyEvaluation:
-    """Returns and lengths of one body's evaluation episodes."""
+    """Returns and lengths of one body's evaluation episodes, for each evaluated seed of the run."""
 
     body: str
+    seeds: tuple[int, ...]
+    """The seed of each row of ``returns`` and ``lengths``."""
     returns: np.ndarray
-    """[episodes] float32 undiscounted episode returns."""
+    """[seeds, episodes] float32 undiscounted episode returns."""
     lengths: np.ndarray
-    """[episodes] int32 episode lengths in environment steps."""
+    """[seeds, episodes] int32 episode lengths in environment steps."""
     qpos: np.ndarray | None = None
-    """[length of episode 0 + 1, nq] joint positions of the first episode, when recorded (for videos)."""
+    """[length of episode 0, nq] joint positions of the first seed's first episode, when recorded."""
+
+    def seed_summary(self, index: int) -> dict[str, float]:
+        """Mean and standard deviation over episodes of one seed's returns and lengths."""
+        return {
+            "return_mean": float(np.mean(self.returns[index])),
+            "return_std": float(np.std(self.returns[index])),
+            "length_mean": float(np.mean(self.lengths[index])),
+            "length_std": float(np.std(self.lengths[index])),
+        }
 
     def summary(self) -> dict[str, float]:
+        """Over seeds: the mean and standard error of the seeds' mean returns and lengths (the error is NaN
+        for one seed), and the mean and standard deviation over every episode of every seed."""
+        seed_returns = np.mean(self.returns, axis=1, dtype=np.float64)
+        seed_lengths = np.mean(self.lengths, axis=1, dtype=np.float64)
         return {
-            "return_mean": float(np.mean(self.returns)),
+            "return_mean": float(np.mean(seed_returns)),
+            "return_se": standard_error(seed_returns),
             "return_std": float(np.std(self.returns)),
-            "length_mean": float(np.mean(self.lengths)),
+            "length_mean": float(np.mean(seed_lengths)),
+            "length_se": standard_error(seed_lengths),
             "length_std": float(np.std(self.lengths)),
         }
 
 
-def evaluate_body(
-    policy: TrainedPolicy, body: str | Path, *, episodes: int = 100, seed: int = 0, record: bool = False
-) -> BodyEvaluation:
-    """Run ``episodes`` deterministic episodes of ``body`` (a name or MJCF path) under ``policy``.
+def standard_error(values: np.ndarray) -> float:
+    """Standard error of the mean of ``values`` [n] (sample standard deviation / sqrt(n)); NaN for n < 2."""
+    if len(values) < 2:
+        return math.nan
+    return float(np.std(values, ddof=1) / math.sqrt(len(values)))
+
+
+def evaluate(
+    policy: TrainedPolicy,
+    bodies: Sequence[str | Path],
+    *,
+    episodes: int = 100,
+    seed: int = 0,
+    record: bool = False,
+    seed_indices: Sequence[int] | None = None,
+) -> list[BodyEvaluation]:
+    """Run ``episodes`` deterministic episodes of every body (names or MJCF paths) under each chosen seed's
+    actor (``seed_indices`` into the run's seeds; default every seed), all in one program
+    (:func:`swat_jax.td3.evaluation.make_evaluation`). Every seed meets the same initial states, drawn
+    from ``seed``.
 
     Raises:
-        MorphologyError: the body cannot be loaded.
-        ValueError: the body does not fit the policy (observation width, traversal positions).
+        MorphologyError: a body cannot be loaded.
+        ValueError: a body does not fit the policy (observation width, traversal positions), or a seed
+            index is out of range.
     """
-    morphology = load(body)
-    env = BodyEnv(morphology, torso_relative_x=policy.config.torso_relative_x)
+    env = MultiTaskEnv(
+        [load(body) for body in bodies],
+        episodes,
+        torso_relative_x=policy.config.torso_relative_x,
+        reference_inorder=policy.config.reference_inorder,
+    )
     features = int(policy.info["observation_features"])
     if env.observation_features != features:
         raise ValueError(
-            f"body {morphology.name} has {env.observation_features} observation features per limb, the policy "
-            f"was trained on {features} (another family vocabulary); evaluate bodies of the run's families"
+            f"{', '.join(env.body_names)}: {env.observation_features} observation features per limb, the "
+            f"policy was trained on {features} (another family vocabulary); evaluate bodies of the run's "
+            "families"
         )
-    batch = pad_structures([morphology], reference_inorder=policy.config.reference_inorder)
-    check_structures(policy.config.network(), batch)
-    structure = jax.tree_util.tree_map(lambda x: jnp.asarray(x[0]), batch)
-    max_steps = morphology.family.max_episode_steps
-
-    def run(params, key: jax.Array):
-        states = jax.vmap(env.reset)(jax.random.split(key, episodes))
-        track = jnp.zeros((max_steps + 1, env.mj_model.nq)).at[0].set(states.data.qpos[0])
-        finished = jnp.zeros(episodes, bool)
-        zeros = jnp.zeros(episodes)
-
-        def unfinished(carry) -> jax.Array:
-            t, _, finished, *_ = carry
-            return (t < max_steps) & ~jnp.all(finished)
-
-        def step(carry):
-            t, states, finished, returns, lengths, track = carry
-            actions = policy.actor.apply(params, states.observation, structure)
-            states = jax.vmap(env.step)(states, actions)
-            ended = states.done & ~finished
-            returns = jnp.where(ended, states.episode_return, returns)
-            lengths = jnp.where(ended, states.episode_length, lengths)
-            if record:
-                track = track.at[t + 1].set(states.data.qpos[0])
-            return t + 1, states, finished | states.done, returns, lengths, track
-
-        *_, returns, lengths, track = jax.lax.while_loop(
-            unfinished, step, (jnp.zeros((), jnp.int32), states, finished, zeros, zeros, track)
+    try:
+        check_structures(policy.config.network(), env.structure, env.body_names)
+    except StructureMismatch as error:
+        raise ValueError(
+            f"{error}: the policy of {policy.config.directory()} cannot take it "
+            f"({policy.config.structure_fix(error)})"
+        ) from error
+    indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
+    params = jax.tree_util.tree_map(
+        lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
+    )
+    evaluation = jax.jit(make_evaluation(env, policy.actor, record=record))
+    result = jax.device_get(evaluation(params, jax.random.PRNGKey(seed)))
+    seeds = tuple(policy.seeds[index] for index in indices)
+    evaluations = []
+    for k, name in enumerate(env.body_names):
+        lengths = np.asarray(result.lengths[:, k], np.int32)
+        qpos = np.asarray(result.qpos[k])[: lengths[0, 0]] if record else None
+        evaluations.append(
+            BodyEvaluation(name, seeds, np.asarray(result.returns[:, k], np.float32), lengths, qpos)
         )
-        return returns, lengths, track
-
-    returns, lengths, track = jax.jit(run)(policy.params, jax.random.PRNGKey(seed))
-    lengths = np.asarray(lengths).astype(np.int32)
-    qpos = np.asarray(track)[: lengths[0] + 1] if record else None
-    return BodyEvaluation(morphology.name, np.asarray(returns, np.float32), lengths, qpos)
+    return evaluations
 
 
 def selected_bodies(policy: TrainedPolicy, split: str, bodies: Sequence[str]) -> tuple[str, ...]:
@@ -118,16 +149,45 @@ def selected_bodies(policy: TrainedPolicy, split: str, bodies: Sequence[str]) ->
 
 
 def format_table(results: Sequence[BodyEvaluation], episodes: int) -> str:
-    """A fixed-width table: body, mean +- std of return and of episode length."""
+    """A fixed-width table per body: for one seed the mean ± standard deviation over episodes of return
+    and length; for several, the mean ± standard error over seeds of each seed's mean, and those means."""
     width = max(len("body"), *(len(r.body) for r in results))
-    lines = [f"{'body':<{width}}  {'return':>20}  {'length':>16}  (over {episodes} episodes)"]
+    seeds = results[0].seeds
+    if len(seeds) == 1:
+        spread, columns = "std", ""
+    else:
+        spread, columns = "s.e.", "  " + "  ".join(f"{f'seed {seed}':>9}" for seed in seeds)
+    over = f"over {episodes} episodes" + (f" x {len(seeds)} seeds" if len(seeds) > 1 else "")
+    lines = [f"{'body':<{width}}  {f'return ± {spread}':>20}  {f'length ± {spread}':>16}{columns}  ({over})"]
     for result in results:
         s = result.summary()
+        error = "std" if len(seeds) == 1 else "se"
+        per_seed = "".join(
+            f"  {result.seed_summary(index)['return_mean']:>9.1f}" for index in range(len(seeds))
+        )
         lines.append(
-            f"{result.body:<{width}}  {s['return_mean']:>10.1f} ± {s['return_std']:<7.1f}  "
-            f"{s['length_mean']:>7.1f} ± {s['length_std']:<6.1f}"
+            f"{result.body:<{width}}  {s['return_mean']:>10.1f} ± {s[f'return_{error}']:<7.1f}  "
+            f"{s['length_mean']:>7.1f} ± {s[f'length_{error}']:<6.1f}{per_seed if len(seeds) > 1 else ''}"
         )
     return "\n".join(lines)
+
+
+def json_report(results: Sequence[BodyEvaluation]) -> dict[str, Any]:
+    """Per body: the summary over seeds, and per seed its summary, returns and lengths."""
+    return {
+        r.body: {
+            **r.summary(),
+            "per_seed": {
+                str(seed): {
+                    **r.seed_summary(index),
+                    "returns": r.returns[index].tolist(),
+                    "lengths": r.lengths[index].tolist(),
+                }
+                for index, seed in enumerate(r.seeds)
+            },
+        }
+        for r in results
+    }
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -135,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m swat_jax.eval",
         description="Evaluate the newest checkpoint of a training run deterministically (no exploration "
-        "noise): per body, the mean and standard deviation of the return and the episode length.",
+        "noise): per body, the mean and standard deviation of the return and the episode length; for a "
+        "multi-seed run, every seed and the mean and standard error over seeds.",
     )
     parser.add_argument(
         "run_dir", type=Path, metavar="RUN_DIR", help="run directory written by swat_jax.train"
@@ -155,6 +216,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--episodes", type=positive_int, default=100, help="episodes per body (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise (default 0)")
+    parser.add_argument(
+        "--seed-index",
+        type=int,
+        metavar="K",
+        help="evaluate only the K-th seed of a multi-seed run (an index into its seeds; default: every seed, "
+        "summarised as the mean ± standard error over seeds)",
+    )
     parser.add_argument("--json", action="store_true", help="print the results as JSON instead of a table")
     parser.add_argument(
         "--video", type=Path, metavar="DIR", help="also write DIR/<body>.mp4 of each body's first episode"
@@ -166,12 +234,15 @@ def run(args: argparse.Namespace) -> str:
     """Evaluate (and render) per the parsed command line; returns the text to print."""
     policy = load_policy(args.run_dir)
     bodies = selected_bodies(policy, args.split, args.bodies)
-    results = []
-    for body in bodies:
-        print(f"evaluating {Path(body).stem} ...", file=sys.stderr)
-        results.append(
-            evaluate_body(policy, body, episodes=args.episodes, seed=args.seed, record=bool(args.video))
-        )
+    print(f"evaluating {', '.join(Path(body).stem for body in bodies)} ...", file=sys.stderr)
+    results = evaluate(
+        policy,
+        bodies,
+        episodes=args.episodes,
+        seed=args.seed,
+        record=bool(args.video),
+        seed_indices=None if args.seed_index is None else [args.seed_index],
+    )
     if args.video:
         from swat_jax.render import render_rollout
 
@@ -186,10 +257,8 @@ def run(args: argparse.Namespace) -> str:
                 "env_steps": policy.info["env_steps"],
                 "episodes": args.episodes,
                 "seed": args.seed,
-                "bodies": {
-                    r.body: {**r.summary(), "returns": r.returns.tolist(), "lengths": r.lengths.tolist()}
-                    for r in results
-                },
+                "seeds": list(results[0].seeds),
+                "bodies": json_report(results),
             },
             indent=2,
         )

@@ -6,8 +6,9 @@ as constants, and the structure arrays of one body are inputs, so one file serve
 archive (read with ``allow_pickle=False``) holding
 
 - ``program``: the serialised :class:`jax.export.Exported` (uint8 bytes);
-- ``metadata``: a JSON string: format and version, algo, env, env steps, max limbs, observation
-  features, the order of the structure inputs, the bodies stored below and the platforms compiled for;
+- ``metadata``: a JSON string: format and version, the jax version that wrote the program, algo, env,
+  env steps, max limbs, observation features, the order of the structure inputs, the bodies stored
+  below and the platforms compiled for;
 - ``structure.<field>``: the padded structure arrays of every body of the run's set (train and test),
   [K, L, ...] in the order of ``metadata["bodies"]``, so a body can be named instead of encoded.
 
@@ -128,6 +129,7 @@ def write_policy(
     metadata = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
+        "jax_version": jax.__version__,
         **details,
         "max_limbs": int(np.shape(structures.limb_mask)[1]),
         "observation_features": int(observation_features),
@@ -159,12 +161,14 @@ def export_policy(
     *,
     max_limbs: int | None = None,
     platforms: Sequence[str] = PLATFORMS,
+    seed_index: int = 0,
 ) -> dict[str, Any]:
     """Export the newest checkpoint's actor of ``run_dir`` to ``output`` (see the module docstring).
 
     Args:
         run_dir: a training run directory (``python -m swat_jax.train``).
         output: the ``.npz`` file to write.
+        seed_index: which of the run's seeds (an index into its seed axis) to export.
         max_limbs: L, the limb count every input is padded to; default the largest body of the run's set
             (train and test splits). Raise it to serve larger bodies than the set's.
         platforms: platforms compiled for.
@@ -215,7 +219,7 @@ def export_policy(
     except ValueError as error:
         raise ExportError(f"{config.algo} cannot take the bodies of {config.env}: {error}") from error
     program = serialize_actor(
-        policy.actor, policy.params, jax.tree.map(lambda x: x[0], structures), platforms
+        policy.actor, policy.seed_params(seed_index), jax.tree.map(lambda x: x[0], structures), platforms
     )
     return write_policy(
         output,
@@ -226,13 +230,13 @@ def export_policy(
         algo=config.algo,
         env=config.env,
         env_steps=int(policy.info["env_steps"]),
+        seed=policy.seeds[seed_index],
         train_bodies=[body.name for body in bodies[: len(train)]],
         test_bodies=[body.name for body in bodies[len(train) :]],
         reference_inorder=config.reference_inorder,
         torso_relative_x=config.torso_relative_x,
         network=dataclasses.asdict(network),
         platforms=list(platforms),
-        jax_version=jax.__version__,
     )
 
 
@@ -330,7 +334,12 @@ class ExportedPolicy:
 
 
 def load(path: str | Path) -> ExportedPolicy:
-    """Read an exported policy file; ExportError names the file and what is wrong with it."""
+    """Read an exported policy file and check that this jax can run its program.
+
+    The program's StableHLO is deserialised and lowered here, for a batch of one, rather than at the first
+    call: a file written by a newer jax than this one (whose StableHLO this jax cannot read) is refused at
+    load time. ExportError names the file and what is wrong with it.
+    """
     path = Path(path)
     with _open(path) as archive:
         metadata = _metadata(path, archive)
@@ -347,16 +356,37 @@ def load(path: str | Path) -> ExportedPolicy:
     except ImportError:
         raise  # flatbuffers, which jax needs to read any exported program, is not installed
     except Exception as error:
-        raise ExportError(
-            f"{path}: its program cannot be read by jax {jax.__version__} ({type(error).__name__}: {error}); "
-            f"export it again with this version (written with jax {metadata.get('jax_version', '?')})"
-        ) from error
+        raise _unusable_program(path, metadata, "read", error) from error
     if len(exported.in_avals) != 1 + len(fields):
         raise ExportError(
             f"{path}: its program takes {len(exported.in_avals)} inputs, but the metadata names "
             f"{1 + len(fields)} (observation and {', '.join(fields)})"
         )
+    try:
+        jax.jit(exported.call).lower(*_one_sample_inputs(exported))
+    except Exception as error:
+        raise _unusable_program(path, metadata, "run", error) from error
     return ExportedPolicy(path, exported, metadata, structures)
+
+
+def _one_sample_inputs(exported: jax.export.Exported) -> list[jax.ShapeDtypeStruct]:
+    """The program's input shapes with the symbolic batch dimension set to 1: observation [1, L, F], then
+    the structure fields [L, ...]."""
+    return [
+        jax.ShapeDtypeStruct(tuple(size if isinstance(size, int) else 1 for size in aval.shape), aval.dtype)
+        for aval in exported.in_avals
+    ]
+
+
+def _unusable_program(path: Path, metadata: dict[str, Any], verb: str, error: Exception) -> ExportError:
+    """The error for a program this jax cannot ``verb`` ("read" or "run"): export again with this jax."""
+    written_with = metadata.get("jax_version", "an unrecorded version")
+    reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    return ExportError(
+        f"{path}: its program was written by jax {written_with} and cannot be {verb} by this jax "
+        f"{jax.__version__} ({type(error).__name__}: {reason}); export the policy again with jax "
+        f"{jax.__version__} (python -m swat_jax.export RUN_DIR -o {path.name})"
+    )
 
 
 def _open(path: Path) -> Any:
@@ -434,15 +464,29 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"comma-separated platforms to compile for, of {', '.join(KNOWN_PLATFORMS)} "
         f"(default {','.join(PLATFORMS)})",
     )
+    parser.add_argument(
+        "--seed-index",
+        type=int,
+        default=0,
+        metavar="K",
+        help="which seed of a multi-seed run to export: an index into the run's seeds (default 0, the first)",
+    )
     return parser
 
 
 def run(args: argparse.Namespace) -> None:
     """Export one parsed command line and print what was written."""
-    metadata = export_policy(args.run_dir, args.output, max_limbs=args.max_limbs, platforms=args.platforms)
+    metadata = export_policy(
+        args.run_dir,
+        args.output,
+        max_limbs=args.max_limbs,
+        platforms=args.platforms,
+        seed_index=args.seed_index,
+    )
     size = args.output.stat().st_size / 2**20
     print(
-        f"wrote {args.output} ({size:.1f} MiB): {metadata['algo']} policy after {metadata['env_steps']:,} "
+        f"wrote {args.output} ({size:.1f} MiB): {metadata['algo']} policy (seed {metadata['seed']}) after "
+        f"{metadata['env_steps']:,} "
         f"environment steps; max limbs {metadata['max_limbs']}, {metadata['observation_features']} observation "
         f"features, platforms {', '.join(metadata['platforms'])}; bodies ({len(metadata['bodies'])}): "
         f"{', '.join(metadata['bodies'])}"

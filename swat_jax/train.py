@@ -34,16 +34,15 @@ import tyro
 from tqdm import tqdm
 
 from swat_jax.cli import ERROR_STATUS
-from swat_jax.envs.multi_task import EpisodeStats
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
 from swat_jax.runs.experiment import CONFIG_FILE, Experiment
-from swat_jax.runs.metrics import MetricsWriter
+from swat_jax.runs.metrics import MetricsWindow, MetricsWriter, evaluation_columns
+from swat_jax.td3.evaluation import Episodes
 from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
 
-LOSSES = ("critic_loss", "actor_loss")
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 """Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
 RESUMABLE_FIELDS = ("steps", "run_dir")
@@ -152,7 +151,7 @@ def train(
     print(
         f"run {config.directory()}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
         f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
-        f"{env.max_limbs} limbs max"
+        f"{env.max_limbs} limbs max, seeds {', '.join(map(str, config.seed_values()))} in one program"
     )
     print(
         check_buffer_fits(
@@ -161,6 +160,7 @@ def train(
             env.max_limbs,
             env.observation_features,
             free_memory_bytes(),
+            seeds=config.seeds,
             flag="--iteration.capacity",
         )
     )
@@ -199,12 +199,13 @@ def _loop(
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
     done = int(info["iterations"])
     seconds = float(info["seconds"])
-    losses = LossWindow(info.get("loss_window", []))
+    window = MetricsWindow(config.seeds, env.num_bodies, info.get("metrics_window"))
 
     start = time.perf_counter()
     print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
     iteration = experiment.iteration().lower(state).compile()
     print(f"compiled in {time.perf_counter() - start:.1f} s")
+    evaluation = experiment.evaluation() if config.eval_interval else None
 
     saved = done
 
@@ -214,7 +215,7 @@ def _loop(
             "env_steps": done * per_iteration,
             "iterations": done,
             "seconds": seconds,
-            "loss_window": losses.values(),
+            "metrics_window": window.to_json(),
             **experiment.info(),
         }
         checkpoints.save(state, state.learner.actor_params, info)
@@ -234,26 +235,23 @@ def _loop(
         while done < total and not stop.requested:
             state, step_metrics = iteration(state)
             # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
-            jax.block_until_ready(step_metrics)
-            losses.add(step_metrics)
+            window.add(jax.device_get(step_metrics))
             done, timed = done + 1, timed + 1
             bar.update(per_iteration)
             if done % log_every == 0 or done == total:
                 now = time.perf_counter()
                 seconds += now - window_start
-                row = {
-                    "env_steps": done * per_iteration,
-                    "iterations": done,
-                    "steps_per_second": timed * per_iteration / (now - window_start),
-                    **losses.means(),
-                    **_episode_columns(env.body_names, state.env.episodes),
-                }
-                state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies)))
-                metrics.write(row)
-                bar.set_postfix(
-                    mean_return=f"{row['mean_return']:.1f}", critic_loss=f"{row['critic_loss']:.3g}"
-                )
-                losses.clear()
+                rate = timed * per_iteration / (now - window_start)
+                rows = _log_rows(window, config, env.body_names, done, rate)
+                if evaluation is not None:
+                    due = done == total or _crossed(
+                        config.eval_interval, done, window.iterations, per_iteration
+                    )
+                    rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
+                for row in rows:
+                    metrics.write(row)
+                bar.set_postfix(_progress_summary(rows))
+                window.clear()
                 timed, window_start = 0, now
             if done % checkpoint_every == 0:
                 save()
@@ -268,46 +266,49 @@ def _loop(
     return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=done < total)
 
 
-class LossWindow:
-    """Per-iteration mean losses since the last metrics row.
+def _log_rows(
+    window: MetricsWindow, config: TrainConfig, body_names: tuple[str, ...], iterations: int, rate: float
+) -> list[dict[str, float]]:
+    """The metrics rows of one log interval, one per seed; ``rate`` is one seed's environment steps/s."""
+    steps = iterations * config.steps_per_iteration(len(body_names))
+    return [
+        {"env_steps": steps, "iterations": iterations, "steps_per_second": rate, **row}
+        for row in window.rows(config.seed_values(), body_names)
+    ]
 
-    Saved in checkpoints (``values``), so the row after a resume averages the same iterations as an
-    uninterrupted run's.
+
+def _crossed(interval: int, done: int, since: int, per_iteration: int) -> bool:
+    """Whether a multiple of ``interval`` steps was passed in the last ``since`` of ``done`` iterations."""
+    return (done * per_iteration) // interval > ((done - since) * per_iteration) // interval
+
+
+def _with_evaluation(
+    rows: list[dict[str, float]],
+    evaluation: Callable[[Any, jax.Array], Episodes] | None,
+    state: TrainState,
+    body_names: tuple[str, ...],
+) -> list[dict[str, float]]:
+    """``rows`` with the ``eval/*`` columns of the current actors (NaN when ``evaluation`` is None).
+
+    Every evaluation starts from the same initial states (key 0, as ``swat_jax.eval``'s default), so the
+    curve's changes are the policy's, not the draws'.
     """
-
-    def __init__(self, saved: list[dict[str, float]]):
-        self.iterations: list[dict[str, Any]] = list(saved)
-
-    def add(self, metrics: dict[str, jax.Array]) -> None:
-        self.iterations.append({name: metrics[name] for name in LOSSES})
-
-    def values(self) -> list[dict[str, float]]:
-        """Each iteration's mean losses as floats."""
-        return [{name: float(np.mean(np.asarray(m[name]))) for name in LOSSES} for m in self.iterations]
-
-    def means(self) -> dict[str, float]:
-        """The losses averaged over the window's iterations (float64 over float32 per-iteration means)."""
-        values = self.values()
-        return {name: float(np.mean(np.array([v[name] for v in values], np.float64))) for name in LOSSES}
-
-    def clear(self) -> None:
-        self.iterations = []
+    if evaluation is None:
+        nan = np.full((len(rows), len(body_names), 1), np.nan)
+        columns = evaluation_columns(nan, nan, body_names)
+    else:
+        episodes = jax.device_get(evaluation(state.learner.actor_params, jax.random.PRNGKey(0)))
+        columns = evaluation_columns(episodes.returns, episodes.lengths, body_names)
+    return [row | extra for row, extra in zip(rows, columns, strict=True)]
 
 
-def _episode_columns(body_names: tuple[str, ...], episodes: EpisodeStats) -> dict[str, float]:
-    """Mean return (over bodies) and per-body mean return, mean length and count of finished episodes."""
-    count = np.asarray(episodes.count)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        returns = np.asarray(episodes.return_sum) / count
-        lengths = np.asarray(episodes.length_sum) / count
-    finished = returns[count > 0]
-    columns: dict[str, float] = {"mean_return": float(np.mean(finished)) if finished.size else math.nan}
-    for name, episode_return, length, n in zip(body_names, returns, lengths, count, strict=True):
-        label = Path(name).stem
-        columns[f"return/{label}"] = float(episode_return)
-        columns[f"length/{label}"] = float(length)
-        columns[f"episodes/{label}"] = int(n)
-    return columns
+def _progress_summary(rows: list[dict[str, float]]) -> dict[str, str]:
+    """The progress bar's postfix: mean return and critic loss, means over seeds."""
+    returns = [row["mean_return"] for row in rows if math.isfinite(row["mean_return"])]
+    return {
+        "mean_return": f"{np.mean(returns):.1f}" if returns else "nan",
+        "critic_loss": f"{np.mean([row['critic_loss'] for row in rows]):.3g}",
+    }
 
 
 def _preset_defaults(argv: list[str]) -> TrainCommand:

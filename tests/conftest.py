@@ -13,7 +13,8 @@ MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"
 
 
 def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
-    """A run small enough for CI: hopper_3 alone, 2 copies, a 1-layer AMORPHEUS of width 16."""
+    """A run small enough for CI: hopper_3 alone, 2 seeds in one program, 2 copies, a 1-layer AMORPHEUS of
+    width 16, evaluated (2 episodes) at 400 steps and at the end."""
     from swat_jax.runs.config import TrainConfig
     from swat_jax.td3.iteration import IterationConfig
     from swat_jax.td3.learner import TD3Config
@@ -22,6 +23,7 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
         env=str(env_dir),
         algo="amorpheus",
         steps=600,
+        seeds=2,
         copies=2,
         iteration=IterationConfig(chunk=50, updates=20, random_steps=100, capacity=1000),
         td3=TD3Config(batch_size=16),
@@ -30,6 +32,8 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
         feedforward=32,
         log_interval=200,
         checkpoint_interval=400,
+        eval_interval=400,
+        eval_episodes=2,
         run_dir=str(run_dir),
     )
     return TrainConfig(**{**fields, **overrides})

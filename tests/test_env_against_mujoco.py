@@ -9,12 +9,12 @@ agreement over 25 steps is checked for every body in test_env_bodies.py.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from subprocesses import python_path_environment
 
 ONE_BODY_PER_FAMILY = [
     "hopper_3",
@@ -46,7 +46,7 @@ print(json.dumps(dict(
 @pytest.mark.parametrize("name", ONE_BODY_PER_FAMILY)
 def test_float64_mjx_environment_equals_mujoco_c_over_100_steps(name):
     tests = Path(__file__).parent
-    environment = dict(os.environ, JAX_ENABLE_X64="1", PYTHONPATH=str(tests))
+    environment = python_path_environment(tests, JAX_ENABLE_X64="1")
     completed = subprocess.run(
         [sys.executable, "-c", SCRIPT, name, str(STEPS)],
         capture_output=True,

@@ -7,36 +7,48 @@ import json
 import numpy as np
 import pytest
 
-from swat_jax.eval import evaluate_body, main
+from swat_jax.eval import evaluate, main
 from swat_jax.runs.experiment import load_policy
 
 
 def test_evaluation_is_deterministic_and_episodes_differ_by_their_resets(trained_run):
     policy = load_policy(trained_run)
-    first = evaluate_body(policy, "hopper_3", episodes=3, seed=1)
-    again = evaluate_body(policy, "hopper_3", episodes=3, seed=1)
+    [first] = evaluate(policy, ["hopper_3"], episodes=3, seed=1)
+    [again] = evaluate(policy, ["hopper_3"], episodes=3, seed=1)
     np.testing.assert_array_equal(first.returns, again.returns)
-    assert first.returns.shape == first.lengths.shape == (3,)
-    assert len(set(first.returns.tolist())) == 3, "each episode has its own reset noise"
+    assert first.seeds == (0, 1) and first.returns.shape == first.lengths.shape == (2, 3)
+    assert len(set(first.returns[0].tolist())) == 3, "each episode has its own reset noise"
     assert ((first.lengths > 0) & (first.lengths <= 1000)).all()
     assert first.qpos is None
+    assert not np.array_equal(first.returns[0], first.returns[1]), "each seed has its own actor"
+    [only_second] = evaluate(policy, ["hopper_3"], episodes=3, seed=1, seed_indices=[1])
+    np.testing.assert_allclose(only_second.returns[0], first.returns[1], rtol=1e-5)
+    summary = first.summary()
+    seed_means = first.returns.mean(axis=1)
+    assert summary["return_mean"] == pytest.approx(seed_means.mean(), rel=1e-5)
+    assert summary["return_se"] == pytest.approx(np.std(seed_means, ddof=1) / np.sqrt(2), rel=1e-4)
 
 
 def test_json_reports_every_body_and_zero_shot_bodies_by_name(trained_run, capsys):
     assert main([str(trained_run), "--episodes", "3", "--bodies", "hopper_3", "hopper_4", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["env_steps"] == 600 and report["episodes"] == 3
+    assert report["env_steps"] == 600 and report["episodes"] == 3 and report["seeds"] == [0, 1]
     assert set(report["bodies"]) == {"hopper_3", "hopper_4"}
     for body in report["bodies"].values():
-        assert len(body["returns"]) == 3
-        assert body["return_mean"] == pytest.approx(np.mean(body["returns"]), rel=1e-5)
-        assert body["length_std"] == pytest.approx(np.std(body["lengths"]), abs=1e-4)
+        assert set(body["per_seed"]) == {"0", "1"}
+        for seed in body["per_seed"].values():
+            assert len(seed["returns"]) == 3
+            assert seed["return_mean"] == pytest.approx(np.mean(seed["returns"]), rel=1e-5)
+            assert seed["length_std"] == pytest.approx(np.std(seed["lengths"]), abs=1e-4)
+        seed_means = [seed["return_mean"] for seed in body["per_seed"].values()]
+        assert body["return_mean"] == pytest.approx(np.mean(seed_means), rel=1e-5)
 
 
 def test_table_and_video_of_the_train_split(trained_run, tmp_path, capsys):
     assert main([str(trained_run), "--episodes", "3", "--video", str(tmp_path / "videos")]) == 0
     out = capsys.readouterr().out
-    assert "after 600 environment steps" in out and "hopper_3" in out and "±" in out
+    assert "after 600 environment steps" in out and "hopper_3" in out and "± s.e." in out
+    assert "seed 0" in out and "seed 1" in out
     video = tmp_path / "videos" / "hopper_3.mp4"
     assert video.stat().st_size > 1000
 
@@ -44,7 +56,11 @@ def test_table_and_video_of_the_train_split(trained_run, tmp_path, capsys):
 def test_errors_name_the_problem(trained_run, tmp_path, capsys):
     assert main([str(trained_run), "--split", "test"]) == 2
     assert "has no test bodies" in capsys.readouterr().err
+    assert main([str(trained_run), "--seed-index", "2"]) == 2
+    assert "holds 2 seeds (0, 1); use an index from 0 to 1" in capsys.readouterr().err
     assert main([str(tmp_path / "nowhere")]) == 2
     assert "no such run directory" in capsys.readouterr().err
     assert main([str(trained_run), "--bodies", "nervenet_hopper"]) == 2
-    assert "21 observation features per limb, the policy was trained on 19" in capsys.readouterr().err
+    assert "nervenet_hopper: 21 observation features per limb, the policy was trained on 19" in (
+        capsys.readouterr().err
+    )

@@ -2,6 +2,7 @@
 the training code; the command line and its errors."""
 
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -34,6 +35,11 @@ TRAINING_CODE = (
     "swat_jax.morphology",
 )
 """Modules the loaded policy must run without."""
+TINY_SWAT = network_config("swat", width=8, heads=1, layers=1, feedforward=8)
+NEWER_JAX_POLICY = Path(__file__).parent / "data" / "policy_jax_0_11_2.npz"
+"""``write_random_policy(path, TINY_SWAT, 3, export.PLATFORMS)`` run under jax 0.11.2 (the Python 3.12
+pins): 24 KB."""
+NEWER_JAX = "0.11.2"
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +70,25 @@ def observations(batch: int, limbs: int, real_limbs: int = 3, seed: int = 0) -> 
     return values
 
 
+def write_random_policy(
+    path: Path, network, max_limbs: int, platforms: tuple[str, ...] = ("cpu",), **details
+) -> tuple:
+    """A randomly initialised actor of ``network`` for hopper_3 padded to ``max_limbs``, exported to
+    ``path``; returns the actor, its parameters and hopper_3's structure slice."""
+    actor, _ = make_actor_critic(network, FEATURES)
+    params = jax.jit(actor.init)(jax.random.key(0))
+    structures = pad_structures([load(BODY)], max_limbs)
+    structure = jax.tree.map(lambda x: x[0], structures)
+    program = export.serialize_actor(actor, params, structure, platforms)
+    export.write_policy(path, program, structures, [BODY], FEATURES, **details)
+    return actor, params, structure
+
+
+def version(text: str) -> tuple[int, ...]:
+    """ "0.10.2" -> (0, 10, 2)."""
+    return tuple(int(part) for part in text.split(".")[:3])
+
+
 def body_structure(hopper_folder: Path, max_limbs: int) -> StructureBatch:
     """hopper_3's StructureBatch slice padded to ``max_limbs``."""
     batch = pad_structures([load(hopper_folder / f"{BODY}.xml")], max_limbs)
@@ -73,7 +98,10 @@ def body_structure(hopper_folder: Path, max_limbs: int) -> StructureBatch:
 def test_command_line_writes_the_file(export_command):
     exported, printed = export_command
     assert printed.startswith(f"wrote {exported} (")
-    assert "amorpheus policy after 600 environment steps; max limbs 3, 19 observation features" in printed
+    assert (
+        "amorpheus policy (seed 0) after 600 environment steps; max limbs 3, 19 observation features"
+        in printed
+    )
     assert printed.rstrip().endswith("bodies (1): hopper_3")
     metadata = json.loads(str(np.load(exported)["metadata"]))
     assert metadata["format"] == export.FORMAT
@@ -81,7 +109,7 @@ def test_command_line_writes_the_file(export_command):
     assert metadata["max_limbs"] == 3
     assert metadata["observation_features"] == FEATURES
     assert metadata["bodies"] == metadata["train_bodies"] == [BODY]
-    assert metadata["env_steps"] == 600
+    assert metadata["env_steps"] == 600 and metadata["seed"] == 0
     assert metadata["platforms"] == list(export.PLATFORMS)
     assert tuple(metadata["structure_fields"]) == StructureBatch._fields
 
@@ -104,34 +132,73 @@ def test_matches_the_trained_policy_at_two_batch_sizes(exported, trained, hopper
         np.testing.assert_allclose(actions, trained.act(observation, structure), atol=1e-5)
 
 
-def test_padded_limbs_do_not_change_actions(trained_run, trained, hopper_folder, tmp_path, capsys):
+def test_padded_limbs_do_not_change_actions_of_the_chosen_seed(
+    trained_run, trained, hopper_folder, tmp_path, capsys
+):
     path = tmp_path / "padded.npz"
-    assert export.main([str(trained_run), "-o", str(path), "--max-limbs", "5", "--platforms", "cpu"]) == 0
-    assert "max limbs 5" in capsys.readouterr().out
+    flags = ["--max-limbs", "5", "--platforms", "cpu", "--seed-index", "1"]
+    assert export.main([str(trained_run), "-o", str(path), *flags]) == 0
+    printed = capsys.readouterr().out
+    assert "(seed 1)" in printed and "max limbs 5" in printed
     policy = export.load(path)
     observation = observations(8, 5, real_limbs=5)  # junk, not zeros, on the padded limbs
     actions = np.asarray(policy(observation, BODY))
-    expected = trained.act(observation[:, :3], body_structure(hopper_folder, 3))
+    structure = body_structure(hopper_folder, 3)
+    expected = trained.act(observation[:, :3], structure, seed_index=1)
     np.testing.assert_allclose(actions[:, :3], expected, atol=1e-5)
     np.testing.assert_array_equal(actions[:, 3:], 0.0)
-    assert policy.metadata["platforms"] == ["cpu"]
+    assert not np.allclose(expected, trained.act(observation[:, :3], structure, seed_index=0), atol=1e-3)
+    assert policy.metadata["platforms"] == ["cpu"] and policy.metadata["seed"] == 1
+    assert export.main([str(trained_run), "-o", str(path), "--seed-index", "2"]) == 2
+    assert "use an index from 0 to 1" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("algo", ["swat", "amorpheus", "smp"])
-def test_every_architecture_exports_with_a_symbolic_batch(algo, hopper_folder, tmp_path):
+def test_every_architecture_exports_with_a_symbolic_batch(algo, tmp_path):
     network = network_config(algo, width=8, heads=1, layers=1, feedforward=8)
     if algo == "smp":
         network = network_config(algo, message_width=4, up_hidden=(8,), down_hidden=(8,))
-    actor, _ = make_actor_critic(network, FEATURES)
-    params = jax.jit(actor.init)(jax.random.key(0))
-    structures = pad_structures([load(hopper_folder / f"{BODY}.xml")], 4)
-    program = export.serialize_actor(actor, params, jax.tree.map(lambda x: x[0], structures), ("cpu",))
-    export.write_policy(tmp_path / "random.npz", program, structures, [BODY], FEATURES, algo=algo)
+    actor, params, structure = write_random_policy(tmp_path / "random.npz", network, 4, algo=algo)
     policy = export.load(tmp_path / "random.npz")
+    assert policy.metadata["jax_version"] == jax.__version__
     for batch in (1, 5):
         observation = observations(batch, 4, seed=batch)
-        expected = jax.jit(actor.apply)(params, observation, jax.tree.map(lambda x: x[0], structures))
+        expected = jax.jit(actor.apply)(params, observation, structure)
         np.testing.assert_allclose(policy(observation, BODY), expected, atol=1e-5)
+
+
+def test_a_program_this_jax_cannot_read_is_refused_at_load(tmp_path):
+    """Forged: the serialised StableHLO replaced by bytes that are not StableHLO, as a newer jax's are to an
+    older one. The flatbuffer around it still reads, so only an eager load finds out."""
+    valid = tmp_path / "valid.npz"
+    write_random_policy(valid, TINY_SWAT, 3)
+    exported = jax.export.deserialize(bytearray(np.load(valid)[export.PROGRAM_KEY].tobytes()))
+    forged = dataclasses.replace(exported, mlir_module_serialized=b"ML\xefR\x00 not StableHLO")
+    path = tmp_path / "forged.npz"
+    structures = pad_structures([load(BODY)], 3)
+    export.write_policy(path, forged.serialize(), structures, [BODY], FEATURES, jax_version="0.99.0")
+    with pytest.raises(export.ExportError) as error:
+        export.load(path)
+    message = str(error.value)
+    assert message.startswith(
+        f"{path}: its program was written by jax 0.99.0 and cannot be run by this jax {jax.__version__} ("
+    )
+    assert message.endswith(
+        f"export the policy again with jax {jax.__version__} (python -m swat_jax.export RUN_DIR -o forged.npz)"
+    )
+
+
+def test_a_policy_written_by_jax_0_11_loads_only_where_jax_reads_it():
+    """On jax 0.10 the file fails at load (it used to fail at its first call); on 0.11.2 it runs."""
+    assert json.loads(str(np.load(NEWER_JAX_POLICY)[export.METADATA_KEY]))["jax_version"] == NEWER_JAX
+    if version(jax.__version__) < version(NEWER_JAX):
+        with pytest.raises(
+            export.ExportError, match=f"written by jax {NEWER_JAX} and cannot be run by this jax"
+        ):
+            export.load(NEWER_JAX_POLICY)
+        return
+    actions = export.load(NEWER_JAX_POLICY)(observations(2, 3), BODY)
+    assert actions.shape == (2, 3) and np.all(np.abs(actions) <= 1.0)
 
 
 def test_runs_without_the_training_code(exported, trained, hopper_folder, tmp_path):

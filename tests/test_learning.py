@@ -8,7 +8,7 @@ import pytest
 from conftest import tiny_train_config
 
 from swat_jax.envs.body import BodyEnv
-from swat_jax.eval import evaluate_body
+from swat_jax.eval import evaluate
 from swat_jax.runs.experiment import load_policy
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
@@ -52,6 +52,7 @@ def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
         tmp_path / "run",
         hopper_folder,
         steps=16_000,
+        seeds=1,
         copies=4,
         iteration=IterationConfig(chunk=50, updates=100, random_steps=1000, capacity=16_000),
         td3=TD3Config(batch_size=100, learning_rate=1e-3),
@@ -61,6 +62,7 @@ def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
         checkpoint_interval=16_000,
     )
     train(config, progress=False)
-    learned = evaluate_body(load_policy(config.directory()), "hopper_3", episodes=EPISODES).summary()
+    [learned] = evaluate(load_policy(config.directory()), ["hopper_3"], episodes=EPISODES)
+    learned = learned.summary()
     assert learned["return_mean"] > 3 * random_return, (learned, random_return, LEARNED_RETURN_MEASURED)
     assert learned["length_mean"] > 150, "random hoppers fall after about 80 steps"

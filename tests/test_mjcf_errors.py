@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from swat_jax.morphology import MorphologyError, load
+from swat_jax.morphology import MorphologyError, get_set, load
 
 FAMILY = '<custom><text name="swat_family" data="walker"/></custom>'
 TORSO_JOINTS = """
@@ -17,6 +17,12 @@ LEG = """
         <geom type="capsule" fromto="0 0 0 0 0 -0.4" size="0.05"/>
       </body>"""
 MOTOR = '<motor joint="thigh_joint" gear="100"/>'
+
+
+@pytest.fixture(autouse=True)
+def _warnings_log_in_tmp_path(tmp_path, monkeypatch):
+    """MuJoCo appends its warnings (a NaN in the XML) to MUJOCO_LOG.TXT in the working directory."""
+    monkeypatch.chdir(tmp_path)
 
 
 def body_file(tmp_path, *, family=FAMILY, torso_joints=TORSO_JOINTS, limbs=LEG, motors=MOTOR, extra_root=""):
@@ -129,3 +135,104 @@ def test_unknown_family(tmp_path):
 def test_mujoco_compile_errors_name_the_file(tmp_path):
     limbs = LEG.replace('size="0.05"', 'size="-1"')
     expect_error(body_file(tmp_path, limbs=limbs), "MuJoCo cannot compile this file")
+
+
+def test_a_folder_is_not_a_body_file(tmp_path):
+    expect_error(tmp_path, "is a folder, not a body file", "--env FOLDER")
+
+
+def test_a_urdf_is_not_a_mujoco_file(tmp_path):
+    path = tmp_path / "robot.urdf"
+    path.write_text('<robot name="r"><link name="base"/></robot>')
+    expect_error(path, "not a MuJoCo file", "root element is <robot>", "<mujoco>")
+
+
+def test_a_missing_include_is_one_line(tmp_path):
+    path = body_file(tmp_path, family=FAMILY + '<include file="scene.xml"/>')
+    message = expect_error(path, "MuJoCo cannot compile this file", "'scene.xml'")
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize("gear", ["0", "nan", "inf"])
+def test_motor_gear_must_be_finite_and_nonzero(tmp_path, gear):
+    motors = MOTOR.replace('gear="100"', f'gear="{gear}"')
+    expect_error(body_file(tmp_path, motors=motors), "actuator of <joint name='thigh_joint'>", "gear")
+
+
+@pytest.mark.parametrize(
+    "joint",
+    [
+        '<joint name="thigh_joint" axis="0 -1 0" range="-150 0" limited="false"/>',
+        '<joint name="thigh_joint" axis="0 -1 0"/>',
+        '<joint name="thigh_joint" axis="0 -1 0" range="10 -10"/>',
+    ],
+)
+def test_limb_joint_needs_a_range(tmp_path, joint):
+    limbs = LEG.replace('<joint name="thigh_joint" axis="0 -1 0" range="-150 0"/>', joint)
+    expect_error(
+        body_file(tmp_path, limbs=limbs), "<joint name='thigh_joint'> has no range", 'range="LOW HIGH"'
+    )
+
+
+def test_torso_pitch_hinge_must_turn_about_y(tmp_path):
+    joints = TORSO_JOINTS.replace('axis="0 1 0"', 'axis="1 0 0"')
+    expect_error(
+        body_file(tmp_path, torso_joints=joints), "'rooty' is a hinge with axis \"1 0 0\"", "hinge about y"
+    )
+
+
+@pytest.mark.parametrize("actuator", ["position", "velocity"])
+def test_actuators_must_be_motors(tmp_path, actuator):
+    motors = f'<{actuator} joint="thigh_joint"/>'
+    expect_error(body_file(tmp_path, motors=motors), "is not a <motor>", "<motor joint=")
+
+
+@pytest.mark.parametrize(
+    ("limbs", "fragments"),
+    [
+        (LEG.replace('pos="0 0 -0.2"', 'pos="0 0 nan"'), ("<body name='thigh'> has pos \"0 0 nan\"",)),
+        (
+            LEG.replace('pos="0 0 -0.2"', 'pos="0 0 -0.2" euler="inf 0 0"'),
+            ("<body name='thigh'> has orientation",),
+        ),
+        (LEG.replace('range="-150 0"', 'range="-150 0" damping="-1"'), ('damping "-1"', "at least 0")),
+        (
+            LEG.replace('size="0.05"', 'size="0.05" friction="nan 0.1 0.1"'),
+            ("unnamed <geom> of <body name='thigh'>",),
+        ),
+        (
+            LEG.replace('size="0.05"', 'size="0.05" mass="nan"'),
+            ("<geom> in <body name='thigh'> has mass=\"nan\"",),
+        ),
+    ],
+)
+def test_numbers_mujoco_accepts_but_the_simulation_cannot_use(tmp_path, limbs, fragments):
+    expect_error(body_file(tmp_path, limbs=limbs), *fragments)
+
+
+def test_timestep_must_be_positive(tmp_path):
+    family = FAMILY + '<option timestep="0"/>'
+    expect_error(body_file(tmp_path, family=family), '<option timestep="0">', "positive")
+
+
+def test_a_folder_set_lists_every_bad_file_at_once(tmp_path):
+    good = body_file(tmp_path)
+    (tmp_path / "no_range.xml").write_text(good.read_text().replace(' range="-150 0"', ""))
+    (tmp_path / "servo.xml").write_text(good.read_text().replace("<motor ", "<position "))
+    with pytest.raises(MorphologyError) as raised:
+        get_set(tmp_path)
+    message = str(raised.value)
+    assert message.startswith(f"{tmp_path}: 2 of its 3 body files cannot be used")
+    assert "\n  no_range.xml: limb joint <joint name='thigh_joint'> has no range" in message
+    assert "\n  servo.xml: the unnamed actuator of <joint name='thigh_joint'> is not a <motor>" in message
+
+
+def test_a_folder_set_refuses_families_of_different_observation_widths(tmp_path):
+    body_file(tmp_path)
+    (tmp_path / "nervenet.xml").write_text(
+        body_file(tmp_path).read_text().replace('data="walker"', 'data="nervenet"')
+    )
+    with pytest.raises(MorphologyError, match="differ in width") as raised:
+        get_set(tmp_path)
+    assert "robot.xml: family walker, 4 limb types" in str(raised.value)
+    assert "nervenet.xml: family nervenet, 6 limb types" in str(raised.value)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from subprocesses import python_path_environment
 
 from swat_jax.morphology import SETS, benchmark_names
 from swat_jax.morphology.__main__ import limb_depths, main
@@ -172,7 +172,7 @@ def test_help_runs_as_a_module():
         capture_output=True,
         text=True,
         cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
+        env=python_path_environment(REPO),
         check=False,
         timeout=120,
     )

@@ -23,6 +23,7 @@ from swat_jax.morphology import (
 )
 from swat_jax.networks import (
     NAMED_VARIANTS,
+    StructureMismatch,
     check_structures,
     make_actor_critic,
     network_config,
@@ -210,10 +211,14 @@ def test_paper_sized_parameter_counts_differ_by_the_structural_embeddings():
 def test_check_structures_refuses_bodies_the_config_cannot_take(structures13):
     check_structures(network_config("swat"), structures13)
     check_structures(network_config("smp"), structures13)
-    with pytest.raises(ValueError, match="max_traversal_positions"):
+    with pytest.raises(StructureMismatch, match="body 0 has 9 limbs, more than the 8 positions") as raised:
         check_structures(network_config("swat", max_traversal_positions=8), structures13)
-    with pytest.raises(ValueError, match="max_children is 3"):
-        check_structures(network_config("smp", max_children=3), structures13)
+    assert (raised.value.setting, raised.value.needed) == ("max_traversal_positions", 9)
+    names = [f"walker_{index}" for index in range(len(structures13.limb_mask))]
+    with pytest.raises(StructureMismatch, match="with 4 children, more than SMP's 3 child slots") as raised:
+        check_structures(network_config("smp", max_children=3), structures13, names)
+    assert str(raised.value).startswith("walker_")
+    assert (raised.value.setting, raised.value.needed) == ("max_children", 4)
 
 
 # Padding and structure

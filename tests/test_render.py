@@ -3,7 +3,6 @@
 One jitted rollout of hopper_3 serves the whole module (MJX takes seconds to compile it).
 """
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from subprocesses import python_path_environment
 
 from swat_jax.envs.body import BodyEnv
 from swat_jax.render import main, render_frames, render_rollout, rollout, write_video
@@ -142,7 +142,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
         capture_output=True,
         text=True,
         cwd=REPO,
-        env={**os.environ, "PYTHONPATH": str(REPO)},
+        env=python_path_environment(REPO),
         check=False,
         timeout=600,
     )

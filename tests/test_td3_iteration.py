@@ -7,16 +7,27 @@ import numpy as np
 
 from swat_jax.envs import MultiTaskEnv
 from swat_jax.networks import make_actor_critic, network_config
-from swat_jax.td3.iteration import IterationConfig, init_train_state, make_train_iteration
+from swat_jax.td3.iteration import (
+    IterationConfig,
+    init_seeded_train_state,
+    init_train_state,
+    make_seeded_train_iteration,
+    make_train_iteration,
+    seed_keys,
+)
 from swat_jax.td3.learner import Learner, TD3Config
 
 CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64)
 
 
-def test_iteration_traces_once_collects_inserts_and_learns():
+def tiny_learner() -> tuple[MultiTaskEnv, Learner]:
     env = MultiTaskEnv(["hopper_3"], copies=2, max_limbs=4)
     actor, critic = make_actor_critic(network_config("amorpheus", width=16, layers=1, feedforward=32), 19)
-    learner = Learner(actor, critic, TD3Config(batch_size=8))
+    return env, Learner(actor, critic, TD3Config(batch_size=8))
+
+
+def test_iteration_traces_once_collects_inserts_and_learns():
+    env, learner = tiny_learner()
     iteration = make_train_iteration(env, learner, CONFIG)
     traces = []
 
@@ -40,3 +51,28 @@ def test_iteration_traces_once_collects_inserts_and_learns():
     assert not all(jax.tree_util.tree_leaves(moved))
     stored = np.asarray(state.buffer.data.observation[0, :24])
     assert np.abs(stored[:, :3]).sum(axis=(1, 2)).min() > 0 and not stored[:, 3:].any(), "padding stays 0"
+
+
+def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k():
+    env, learner = tiny_learner()
+    seeded = jax.jit(make_seeded_train_iteration(env, learner, CONFIG))
+    state = init_seeded_train_state(env, learner, CONFIG, seed_keys(5, 3))
+    single = jax.jit(make_train_iteration(env, learner, CONFIG))
+    alone = init_train_state(env, learner, CONFIG, jax.random.PRNGKey(6))
+    for _ in range(3):  # past the random steps and the first updates, actor steps included
+        state, metrics = seeded(state)
+        alone, alone_metrics = single(alone)
+    assert state.env_steps.shape == state.learner.updates.shape == (), "step counters are shared"
+    assert metrics["critic_loss"].shape == (3, CONFIG.updates)
+    per_seed = {
+        "actor": (state.learner.actor_params, alone.learner.actor_params),
+        "critic": (state.learner.critic_params, alone.learner.critic_params),
+        "replay": (state.buffer.data, alone.buffer.data),
+        "observation": (state.env.observation, alone.env.observation),
+    }
+    for name, (seeds, one) in per_seed.items():
+        for a, b in zip(jax.tree_util.tree_leaves(seeds), jax.tree_util.tree_leaves(one), strict=True):
+            np.testing.assert_allclose(a[1], b, rtol=1e-4, atol=1e-5, err_msg=name)
+    np.testing.assert_allclose(metrics["critic_loss"][1], alone_metrics["critic_loss"], rtol=1e-4)
+    losses = np.asarray(metrics["critic_loss"][:, -1])
+    assert len(set(losses.tolist())) == 3, "every seed is its own run"

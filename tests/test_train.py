@@ -19,6 +19,7 @@ import pytest
 from conftest import tiny_train_config, train_flags
 from tensorboardX.proto import event_pb2
 
+from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
 from swat_jax.runs.config import PRESETS, Algorithm, ConfigError, TrainConfig, load_config
@@ -39,10 +40,10 @@ def final_state(run_dir: Path):
         checkpoints.close()
 
 
-def tensorboard_tags(run_dir: Path) -> set[str]:
-    """Scalar tags in the run's TensorBoard event files (TFRecord framing read by hand)."""
+def tensorboard_tags(directory: Path) -> set[str]:
+    """Scalar tags in the TensorBoard event files of ``directory`` (TFRecord framing read by hand)."""
     tags = set()
-    for path in (run_dir / "tensorboard").glob("events.out.tfevents.*"):
+    for path in directory.glob("events.out.tfevents.*"):
         data = path.read_bytes()
         offset = 0
         while offset < len(data):
@@ -57,17 +58,37 @@ def test_run_directory_holds_config_metrics_tensorboard_and_checkpoints(trained_
     config = load_config(trained_run / "config.json")
     assert config == tiny_train_config(trained_run, Path(config.env))
     rows = read_metrics(trained_run)
-    assert [row["env_steps"] for row in rows] == [200, 400, 600]
+    assert [(row["env_steps"], row["seed"]) for row in rows] == [
+        (steps, seed) for steps in (200, 400, 600) for seed in (0, 1)
+    ], "one row per seed per log interval"
     for column in ("return/hopper_3", "length/hopper_3", "episodes/hopper_3", "critic_loss", "actor_loss"):
         assert column in rows[0]
     assert all(row["steps_per_second"] > 0 for row in rows)
-    assert sum(row["episodes/hopper_3"] for row in rows) >= 3, "random hopper_3 episodes last ~80 steps"
-    tags = tensorboard_tags(trained_run)
-    assert {"return/hopper_3", "length/hopper_3", "critic_loss", "steps_per_second"} <= tags
+    for seed in (0, 1):
+        seed_rows = [row for row in rows if row["seed"] == seed]
+        assert sum(row["episodes/hopper_3"] for row in seed_rows) >= 3, "random episodes last ~80 steps"
+    assert rows[-2]["critic_loss"] != rows[-1]["critic_loss"], "the seeds are independent runs"
+    for seed in (0, 1):
+        tags = tensorboard_tags(trained_run / "tensorboard" / f"seed{seed}")
+        assert {"return/hopper_3", "length/hopper_3", "critic_loss", "steps_per_second"} <= tags
     steps = sorted(int(p.name) for p in (trained_run / "checkpoints").iterdir() if p.name.isdigit())
     assert steps == [400, 600]
+    evaluated = [row["env_steps"] for row in rows if np.isfinite(row["eval/return/hopper_3"])]
+    assert evaluated == [400, 400, 600, 600], "evaluations every --eval-interval steps and at the end"
     policy = load_policy(trained_run)
     assert policy.info["env_steps"] == 600 and policy.info["bodies"] == ["hopper_3"]
+    assert policy.seeds == (0, 1)
+
+
+def test_the_evaluation_during_training_is_the_eval_commands(trained_run):
+    """The final row's eval/* columns are what swat_jax.eval measures on the final checkpoint."""
+    final = {int(row["seed"]): row for row in read_metrics(trained_run) if row["env_steps"] == 600}
+    [evaluation] = evaluate(load_policy(trained_run), ["hopper_3"], episodes=2, seed=0)
+    for index, seed in enumerate(evaluation.seeds):
+        row = final[seed]
+        assert row["eval/return/hopper_3"] == pytest.approx(evaluation.returns[index].mean(), rel=1e-4)
+        assert row["eval/length/hopper_3"] == pytest.approx(evaluation.lengths[index].mean())
+        assert row["eval/mean_return"] == row["eval/return/hopper_3"], "one body"
 
 
 def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, hopper_folder, tmp_path):
@@ -92,7 +113,7 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, h
     differing = [key for key in a if not np.array_equal(np.asarray(a[key]), np.asarray(b[key]))]
     assert not differing, f"resumed run differs in {differing[:5]}"
     rows, reference = read_metrics(tmp_path / "resumed"), read_metrics(trained_run)
-    assert [row["env_steps"] for row in rows] == [200, 400, 600]
+    assert [row["env_steps"] for row in rows] == [200, 200, 400, 400, 600, 600]
     for row, expected in zip(rows, reference, strict=True):
         assert {k: v for k, v in row.items() if k not in TIMING_COLUMNS} == pytest.approx(
             {k: v for k, v in expected.items() if k not in TIMING_COLUMNS}, nan_ok=True
@@ -144,7 +165,7 @@ def test_resume_without_checkpoint_starts_from_the_saved_config(trained_run, tmp
     config = dataclasses.replace(load_config(run_dir / "config.json"), steps=100)
     result = train(config, resume=True, progress=False)
     assert not result.interrupted and result.env_steps == 100
-    assert [row["env_steps"] for row in read_metrics(run_dir)] == [100], "the old rows are dropped"
+    assert [row["env_steps"] for row in read_metrics(run_dir)] == [100, 100], "the old rows are dropped"
 
 
 def test_a_resumed_run_compiles_the_fresh_runs_program(trained_run):
@@ -292,13 +313,13 @@ def test_cli_reports_an_existing_run_directory(trained_run, capsys):
 
 def test_make_train_passes_options_through():
     command = subprocess.run(
-        ["make", "-n", "train", "ENV=walker", "ALGO=smp", "SEED=3", "STEPS=1000", "PRESET=fast"],
+        ["make", "-n", "train", "ENV=walker", "ALGO=smp", "SEED=3", "SEEDS=5", "STEPS=1000", "PRESET=fast"],
         capture_output=True,
         text=True,
         check=True,
         cwd=Path(__file__).resolve().parents[1],
     ).stdout
-    for flag in ("--env walker", "--algo smp", "--seed 3", "--steps 1000", "--preset fast"):
+    for flag in ("--env walker", "--algo smp", "--seed 3", "--seeds 5", "--steps 1000", "--preset fast"):
         assert flag in command
 
 

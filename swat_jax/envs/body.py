@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
 from swat_jax.envs.physics import physics_step
+from swat_jax.envs.quiet_mjx import mjx
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
 

@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+
+from swat_jax.envs.quiet_mjx import mjx
 
 RK4_STAGE_OFFSETS = np.array([0.0, 0.5, 0.5, 1.0])
 """Fraction of dt at which stage i evaluates the derivative, from the previous stage's derivative."""

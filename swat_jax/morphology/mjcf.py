@@ -23,9 +23,40 @@ FAMILY_TEXT = "swat_family"
 ROOT_JOINTS = (
     (mujoco.mjtJoint.mjJNT_SLIDE, (1.0, 0.0, 0.0)),
     (mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 0.0, 1.0)),
-    (mujoco.mjtJoint.mjJNT_HINGE, None),
+    (mujoco.mjtJoint.mjJNT_HINGE, (0.0, 1.0, 0.0)),
 )
 """Torso joints in order: qpos[0] = x, qpos[1] = height, qpos[2] = pitch angle."""
+MOTOR_TYPES = (mujoco.mjtDyn.mjDYN_NONE, mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_NONE)
+"""Dynamics, gain and bias types of a ``<motor>``: the control is a force, scaled by the gear."""
+_BODY, _GEOM, _JOINT, _SITE, _ACTUATOR = (
+    mujoco.mjtObj.mjOBJ_BODY,
+    mujoco.mjtObj.mjOBJ_GEOM,
+    mujoco.mjtObj.mjOBJ_JOINT,
+    mujoco.mjtObj.mjOBJ_SITE,
+    mujoco.mjtObj.mjOBJ_ACTUATOR,
+)
+CHECKED_NUMBERS = (
+    ("geom_pos", _GEOM, "pos or fromto", False),
+    ("geom_quat", _GEOM, "orientation or fromto", False),
+    ("geom_friction", _GEOM, "friction", True),
+    ("body_pos", _BODY, "pos", False),
+    ("body_quat", _BODY, "orientation (quat, euler, axisangle, xyaxes or zaxis)", False),
+    ("body_ipos", _BODY, "<inertial> pos", False),
+    ("body_iquat", _BODY, "<inertial> orientation", False),
+    ("site_pos", _SITE, "pos", False),
+    ("jnt_pos", _JOINT, "pos", False),
+    ("jnt_axis", _JOINT, "axis", False),
+    ("jnt_stiffness", _JOINT, "stiffness", True),
+    ("dof_damping", _JOINT, "damping", True),
+    ("dof_armature", _JOINT, "armature", True),
+    ("dof_frictionloss", _JOINT, "frictionloss", True),
+    ("actuator_gear", _ACTUATOR, "gear", False),
+    ("actuator_ctrlrange", _ACTUATOR, "ctrlrange", False),
+)
+"""Compiled numbers that MuJoCo 3.17 accepts although NaN, infinite (it only warns) or, where the
+last column says so, negative: (model field, element type, MJCF attribute, must be >= 0). Geoms come
+before bodies because a body's inertial frame is computed from its geoms. Masses, inertias and geom
+sizes are not listed: MuJoCo refuses non-finite and non-positive ones itself."""
 
 
 class MorphologyError(ValueError):
@@ -34,6 +65,7 @@ class MorphologyError(ValueError):
     def __init__(self, path: Path | str, problem: str):
         super().__init__(f"{path}: {problem}")
         self.path = Path(path)
+        self.problem = problem
 
 
 def benchmark_names() -> tuple[str, ...]:
@@ -49,6 +81,12 @@ def resolve(name_or_path: str | Path) -> Path:
     path = Path(name_or_path).expanduser()
     if path.is_file():
         return path
+    if path.is_dir():
+        raise MorphologyError(
+            path,
+            "is a folder, not a body file; give the path of one MJCF file in it "
+            "(a folder of body files is an environment set: `python -m swat_jax.train --env FOLDER`)",
+        )
     if path.suffix.lower() != ".xml" and "/" not in str(name_or_path):
         close = difflib.get_close_matches(str(name_or_path), benchmark_names(), n=3)
         hint = f" Did you mean {', '.join(close)}?" if close else ""
@@ -61,11 +99,20 @@ def resolve(name_or_path: str | Path) -> Path:
 
 
 def _check_xml(path: Path) -> ET.Element:
+    """The root element of a well-formed MJCF file (``<mujoco>``); MuJoCo would also read a URDF."""
     try:
-        return ET.parse(path).getroot()
+        root = ET.parse(path).getroot()
     except ET.ParseError as error:
         line, column = error.position
         raise MorphologyError(path, f"malformed XML at line {line}, column {column}: {error}") from None
+    if root.tag != "mujoco":
+        raise MorphologyError(
+            path,
+            f"not a MuJoCo file: its root element is <{root.tag}>, an MJCF body file's is <mujoco>; "
+            "write the body in MJCF (a URDF can be converted: load it with MuJoCo and save it with "
+            "mujoco.mj_saveLastXML, then follow the body conventions of the README)",
+        )
+    return root
 
 
 def _check_motor_targets(path: Path, root: ET.Element) -> None:
@@ -100,7 +147,8 @@ def _compile(path: Path) -> mujoco.MjModel:
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as error:
-        raise MorphologyError(path, f"MuJoCo cannot compile this file: {error}") from None
+        message = "; ".join(line.strip() for line in str(error).splitlines() if line.strip())
+        raise MorphologyError(path, f"MuJoCo cannot compile this file: {message}") from None
 
 
 def compile_model(morphology: Morphology) -> mujoco.MjModel:
@@ -110,6 +158,72 @@ def compile_model(morphology: Morphology) -> mujoco.MjModel:
 
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str:
     return mujoco.mj_id2name(model, obj, index) or f"#{index}"
+
+
+def _numbers(values: np.ndarray) -> str:
+    """Numbers as they would be written in MJCF: ``"0 nan 1"``."""
+    return '"' + " ".join(f"{v:g}" for v in np.ravel(values)) + '"'
+
+
+def _element(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str:
+    """An element in MJCF terms: ``<joint name='knee'>``, or an unnamed one by what it belongs to."""
+    tag = mujoco.mjtObj(obj).name.removeprefix("mjOBJ_").lower()
+    name = mujoco.mj_id2name(model, obj, index)
+    if name:
+        return f"<{tag} name={name!r}>"
+    if obj == _ACTUATOR and model.actuator_trntype[index] == mujoco.mjtTrn.mjTRN_JOINT:
+        joint = _name(model, _JOINT, model.actuator_trnid[index, 0])
+        return f"the unnamed actuator of <joint name={joint!r}>"
+    owner = {_GEOM: model.geom_bodyid, _SITE: model.site_bodyid}.get(obj)
+    if owner is None:
+        return f"<{tag}> #{index}"
+    return f"an unnamed <{tag}> of <body name={_name(model, _BODY, owner[index])!r}>"
+
+
+def _check_numbers(path: Path, model: mujoco.MjModel) -> None:
+    """Refuse the NaN, infinite or negative numbers MuJoCo compiles (CHECKED_NUMBERS) and a bad timestep."""
+    timestep = model.opt.timestep
+    if not (np.isfinite(timestep) and timestep > 0):
+        raise MorphologyError(
+            path, f'<option timestep="{timestep:g}">; the timestep must be a positive number of seconds'
+        )
+    if not np.isfinite(model.opt.gravity).all():
+        raise MorphologyError(
+            path, f"<option gravity={_numbers(model.opt.gravity)}>; write three finite numbers"
+        )
+    for field, obj, attribute, nonnegative in CHECKED_NUMBERS:
+        values = getattr(model, field)
+        rows = tuple(range(1, values.ndim))
+        bad = ~np.isfinite(values).all(axis=rows) | (nonnegative & (values < 0).any(axis=rows))
+        for row in np.flatnonzero(bad):
+            index = model.dof_jntid[row] if field.startswith("dof_") else row
+            allowed = "finite numbers of at least 0" if nonnegative else "finite numbers"
+            raise MorphologyError(
+                path,
+                f"{_element(model, obj, index)} has {attribute} {_numbers(values[row])}; write {allowed} "
+                "there (MuJoCo compiles it, the simulation would not be meaningful)",
+            )
+
+
+def _check_geom_masses(path: Path, root: ET.Element) -> None:
+    """MuJoCo ignores a NaN or infinite ``<geom mass>`` (the density decides); refuse it instead."""
+    parents = {child: parent for parent in root.iter() for child in parent}
+    for geom in root.iter("geom"):
+        mass = geom.get("mass")
+        if mass is not None and not _is_finite(mass):
+            parent = parents[geom]
+            where = f"<geom name={geom.get('name')!r}>" if geom.get("name") else "a <geom>"
+            owner = f" in <{parent.tag} name={parent.get('name')!r}>" if parent.get("name") else ""
+            raise MorphologyError(
+                path, f'{where}{owner} has mass="{mass}"; write a positive number of kilograms'
+            )
+
+
+def _is_finite(text: str) -> bool:
+    try:
+        return bool(np.isfinite(float(text)))
+    except ValueError:
+        return True  # not a number at all: MuJoCo's own parser reports it
 
 
 def _family_name(path: Path, model: mujoco.MjModel) -> str:
@@ -143,12 +257,13 @@ def _check_root(path: Path, model: mujoco.MjModel) -> None:
             path, f"torso <body name={torso!r}> has {len(joints)} joints; it needs 3: {expected}"
         )
     for joint, (kind, axis) in zip(joints, ROOT_JOINTS, strict=True):
-        if model.jnt_type[joint] != kind or (
-            axis is not None and not np.allclose(model.jnt_axis[joint], axis)
-        ):
+        if model.jnt_type[joint] != kind or not np.allclose(model.jnt_axis[joint], axis):
             name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+            found = mujoco.mjtJoint(model.jnt_type[joint]).name.removeprefix("mjJNT_").lower()
             raise MorphologyError(
-                path, f"torso joint {name!r} is not planar; the torso's joints must be {expected}"
+                path,
+                f"torso joint {name!r} is a {found} with axis {_numbers(model.jnt_axis[joint])}, so the "
+                f"torso is not planar; the torso's joints must be {expected}",
             )
 
 
@@ -172,16 +287,44 @@ def _limb_joint(path: Path, model: mujoco.MjModel, body: int) -> int:
             path,
             f"limb <body name={limb!r}> has {len(joints)} joints ({', '.join(names)}); a limb has one hinge",
         )
+    if not model.jnt_limited[joints[0]]:
+        raise MorphologyError(
+            path,
+            f'limb joint <joint name={names[0]!r}> has no range (limited="false", no range, or LOW >= HIGH); '
+            'the observation scales each joint angle by its range: give it range="LOW HIGH" in degrees, '
+            "LOW < HIGH",
+        )
     return joints[0]
+
+
+def _check_motor(path: Path, model: mujoco.MjModel, actuator: int) -> None:
+    """A torque motor on one joint with a nonzero gear: the policy's action is a torque command."""
+    name = _element(model, _ACTUATOR, actuator)
+    if model.actuator_trntype[actuator] != mujoco.mjtTrn.mjTRN_JOINT:
+        raise MorphologyError(path, f"{name} does not drive a joint; every motor drives one limb joint")
+    kind = (
+        model.actuator_dyntype[actuator],
+        model.actuator_gaintype[actuator],
+        model.actuator_biastype[actuator],
+    )
+    if kind != MOTOR_TYPES:
+        raise MorphologyError(
+            path,
+            f"{name} is not a <motor> (a <position> or <velocity> servo, or an actuator with "
+            "activation dynamics or a bias force); the policy's actions are torques: drive every limb "
+            'joint with <motor joint="..." gear="...">',
+        )
+    if model.actuator_gear[actuator, 0] == 0:
+        raise MorphologyError(
+            path,
+            f'{name} has gear="0", so its limb can never move; give it a nonzero gear '
+            "(the benchmark's motors use 12.5 to 200)",
+        )
 
 
 def _limb_motors(path: Path, model: mujoco.MjModel, limb_joints: list[int]) -> tuple[int, ...]:
     for actuator in range(model.nu):
-        if model.actuator_trntype[actuator] != mujoco.mjtTrn.mjTRN_JOINT:
-            name = _name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator)
-            raise MorphologyError(
-                path, f"actuator {name} does not drive a joint; every motor drives one limb joint"
-            )
+        _check_motor(path, model, actuator)
     motors = [-1]
     for joint in limb_joints:
         driving = [a for a in range(model.nu) if model.actuator_trnid[a, 0] == joint]
@@ -218,7 +361,9 @@ def load(name_or_path: str | Path, *, max_limbs: int | None = None) -> Morpholog
     root = _check_xml(path)
     _check_motor_targets(path, root)
     _check_no_free_limbs(path, root)
+    _check_geom_masses(path, root)
     model = _compile(path)
+    _check_numbers(path, model)
     family = _family_name(path, model)
     _check_root(path, model)
     limbs = list(range(1, model.nbody))

@@ -7,9 +7,11 @@ CWH++, CWHH++) are built from the single-family sets, so a split is written down
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
-from swat_jax.morphology.mjcf import MorphologyError
+from swat_jax.morphology.mjcf import MorphologyError, load
+from swat_jax.morphology.types import Morphology
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,14 +97,53 @@ SETS: dict[str, EnvironmentSet] = {
 
 
 def folder_set(folder: str | Path) -> EnvironmentSet:
-    """A custom set: every ``*.xml`` file directly in ``folder``, all for training, sorted by name."""
+    """A custom set: every ``*.xml`` file directly in ``folder``, all for training, sorted by name.
+
+    Every file is loaded first (:func:`check_folder_bodies`), so a bad file is reported here, with
+    all the others, and not as a traceback once training or evaluation has started.
+    """
     path = Path(folder).expanduser()
     if not path.is_dir():
         raise MorphologyError(path, "not a folder; a custom set is a folder of MJCF body files")
     bodies = tuple(str(p) for p in sorted(path.glob("*.xml")))
     if not bodies:
         raise MorphologyError(path, "no *.xml files in this folder; put one MJCF file per body in it")
+    check_folder_bodies(path, bodies)
     return EnvironmentSet(path.name, bodies, description=f"MJCF files in {path}")
+
+
+def check_folder_bodies(folder: Path, bodies: Sequence[str]) -> tuple[Morphology, ...]:
+    """Load every body of a folder set; one MorphologyError lists every file that cannot be used.
+
+    Besides each file's own problems, bodies whose families have limb-type vocabularies of
+    different sizes are refused together: their per-limb observations differ in width, so one
+    policy cannot take them all.
+    """
+    loaded, problems = [], []
+    for body in bodies:
+        try:
+            loaded.append(load(body))
+        except MorphologyError as error:
+            problems.append(f"  {Path(body).name}: {error.problem}")
+    if problems:
+        raise MorphologyError(
+            folder,
+            f"{len(problems)} of its {len(bodies)} body files cannot be used; fix or move them:\n"
+            + "\n".join(problems),
+        )
+    vocabularies = {body.family.num_limb_types for body in loaded}
+    if len(vocabularies) > 1:
+        lines = [
+            f"  {body.path.name}: family {body.family.name}, {body.family.num_limb_types} limb types"
+            for body in loaded
+        ]
+        raise MorphologyError(
+            folder,
+            "its bodies' families have limb-type vocabularies of different sizes, so their per-limb "
+            "observations differ in width and one policy cannot take them all; put the families in "
+            "separate folders:\n" + "\n".join(lines),
+        )
+    return tuple(loaded)
 
 
 def get_set(name_or_folder: str | Path) -> EnvironmentSet:

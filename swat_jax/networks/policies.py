@@ -14,6 +14,7 @@ Outputs on padded limbs are zero.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import flax.linen as nn
@@ -118,21 +119,43 @@ def param_count(params: Params) -> int:
     return sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params))
 
 
-def check_structures(config: NetworkConfig, structures: StructureBatch) -> None:
-    """Host-side check (not jittable) that ``config`` can take these bodies; raises ValueError if not.
+class StructureMismatch(ValueError):
+    """Bodies a network cannot take; ``setting`` (a NetworkConfig field) would need to be at least ``needed``."""
+
+    def __init__(self, problem: str, setting: str, needed: int):
+        super().__init__(problem)
+        self.setting = setting
+        self.needed = needed
+
+
+def check_structures(
+    config: NetworkConfig, structures: StructureBatch, names: Sequence[str] | None = None
+) -> None:
+    """Host-side check (not jittable) that ``config`` can take these bodies; raises StructureMismatch if not.
 
     Inside jit an out-of-range traversal position or an extra child cannot raise: traversal
-    positions must be below ``max_traversal_positions`` (transformers) and no limb may have more
-    than ``max_children`` children (SMP).
+    positions must be below ``max_traversal_positions`` (transformers: one position per limb, so
+    a body needs as many as it has limbs) and no limb may have more than ``max_children``
+    children (SMP). ``names`` (one per body of the batch) name the body in the message.
     """
+    names = names or [f"body {index}" for index in range(structures.limb_mask.shape[0])]
     if config.architecture == "smp":
-        needed = most_children(structures.parents)
-        if needed > config.max_children:
-            raise ValueError(f"a limb has {needed} children but max_children is {config.max_children}")
+        children = [most_children(parents) for parents in np.asarray(structures.parents)]
+        worst = int(np.argmax(children))
+        if children[worst] > config.max_children:
+            raise StructureMismatch(
+                f"{names[worst]} has a limb with {children[worst]} children, more than SMP's "
+                f"{config.max_children} child slots (max_children)",
+                "max_children",
+                children[worst],
+            )
     elif config.traversals:
-        largest = int(np.max(np.where(structures.limb_mask[..., None], structures.traversal_positions, 0)))
-        if largest >= config.max_traversal_positions:
-            raise ValueError(
-                f"traversal position {largest} needs max_traversal_positions > {largest}, "
-                f"got {config.max_traversal_positions}"
+        limbs = np.asarray(structures.limb_mask).sum(axis=-1)
+        worst = int(np.argmax(limbs))
+        if limbs[worst] > config.max_traversal_positions:
+            raise StructureMismatch(
+                f"{names[worst]} has {limbs[worst]} limbs, more than the {config.max_traversal_positions} "
+                "positions of each traversal table (max_traversal_positions)",
+                "max_traversal_positions",
+                int(limbs[worst]),
             )

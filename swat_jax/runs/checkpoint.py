@@ -17,6 +17,7 @@ leaves the previous checkpoint intact.
 
 from __future__ import annotations
 
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,12 @@ import orbax.checkpoint as ocp
 
 MAX_LISTED = 5
 """Mismatched arrays named in an error message."""
+MAX_SUMMARY = 200
+"""Characters of a read error shown in the message; the whole error goes to ERROR_LOG."""
+ERROR_LOG = "checkpoint_error.log"
+"""File in the run directory that holds the whole error of the last unreadable checkpoint."""
+TENSORSTORE_DETAIL = "See full TensorStore details"
+"""Where TensorStore's read errors start appending their whole spec (dozens of lines)."""
 
 
 class CheckpointError(RuntimeError):
@@ -128,9 +135,27 @@ class Checkpoints:
             return self.manager.restore(step, args=ocp.args.Composite(**items))
         except Exception as error:
             raise CheckpointError(
-                f"{self._path(step)} is unreadable ({type(error).__name__}: {error}); delete that folder to "
-                f"fall back to an earlier checkpoint, or start over with --overwrite"
+                f"{self._path(step)} is unreadable ({_summary(error)}); delete that folder to fall back to "
+                f"the previous checkpoint. {self._log_error(step, error)}"
             ) from error
+
+    def _log_error(self, step: int, error: Exception) -> str:
+        """Write the whole of ``error`` (TensorStore's runs to a screen or more) to ERROR_LOG; say where."""
+        log = self.directory.parent / ERROR_LOG
+        text = "".join(traceback.format_exception(error))
+        try:
+            log.write_text(f"reading checkpoint {self._path(step)}:\n{text}")
+        except OSError as write_error:
+            return f"(The full error could not be written to {log}: {write_error})"
+        return f"The full error is in {log}"
+
+
+def _summary(error: Exception) -> str:
+    """The first line of ``error``, without the TensorStore spec it may append, at most MAX_SUMMARY long."""
+    first = (str(error).splitlines() or [""])[0].split(TENSORSTORE_DETAIL)[0].strip()
+    if len(first) > MAX_SUMMARY:
+        first = first[: MAX_SUMMARY - 3] + "..."
+    return f"{type(error).__name__}: {first}"
 
 
 def _differences(saved: dict[str, list], expected: dict[str, list]) -> str:

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from swat_jax.morphology import SETS, get_set
-from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, network_config
+from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 
@@ -32,7 +32,7 @@ class ConfigError(ValueError):
     """A configuration that cannot run, or a config file that cannot be read; the message says the fix."""
 
 
-NETWORK_SIZES = ("width", "heads", "layers", "feedforward")
+NETWORK_SIZES = ("width", "heads", "layers", "feedforward", "max_traversal_positions", "max_children")
 PRESET_NAMES: tuple[str, ...] = typing.get_args(Preset)
 
 
@@ -52,7 +52,9 @@ class TrainConfig:
     preset: Preset = "paper"
     """Preset that gave this run its defaults: paper (1 copy per body, 1 update per step) or fast (16 copies, batch 256)."""
     seed: int = 0
-    """Seed of network initialisation, resets, exploration and replay sampling."""
+    """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
+    seeds: int = 1
+    """Independent runs trained in one program, seeds seed .. seed+seeds-1 (a batch axis of the whole training state)."""
     steps: int = 10_000_000
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
     copies: int = 1
@@ -69,12 +71,20 @@ class TrainConfig:
     """Transformer layers; None keeps the algorithm's (3)."""
     feedforward: int | None = None
     """Feed-forward width of each layer; None keeps the algorithm's (256)."""
+    max_traversal_positions: int | None = None
+    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps 32."""
+    max_children: int | None = None
+    """SMP: child slots per limb, at least the most children of any limb; None keeps 4."""
     torso_relative_x: bool = True
     """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
     reference_inorder: bool = False
     """Use the reference code's in-order traversal for the positional embedding (BENCHMARK.md quirk 2)."""
     log_interval: int = 10_000
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
+    eval_interval: int = 0
+    """Environment steps (all bodies) between deterministic evaluations of the policy on the train bodies, logged as eval/* columns at the next metrics row; 0 turns them off."""
+    eval_episodes: int = 10
+    """Deterministic episodes per body in each evaluation during training (from the same initial states every time)."""
     checkpoint_interval: int = 200_000
     """Environment steps (all bodies) between checkpoints; one is also written at the end and on Ctrl-C."""
     keep_checkpoints: int = 2
@@ -94,12 +104,15 @@ class TrainConfig:
             raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
         if self.preset not in PRESET_NAMES:
             raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
-        for name in ("steps", "copies", "log_interval", "checkpoint_interval", "keep_checkpoints"):
+        for name in ("steps", "seeds", "copies", "log_interval", "checkpoint_interval", "keep_checkpoints"):
             _require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
         for name in ("chunk", "updates", "capacity"):
             _require_positive(f"--iteration.{name}", getattr(self.iteration, name))
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
+        _require_positive("--eval-episodes", self.eval_episodes)
+        if self.eval_interval < 0:
+            raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
         if self.iteration.random_steps < 0:
             raise ConfigError(
                 f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"
@@ -125,7 +138,20 @@ class TrainConfig:
 
     def directory(self) -> Path:
         """The run directory."""
-        return Path(self.run_dir or f"runs/{Path(self.env).name}-{self.algo}-seed{self.seed}")
+        return Path(self.run_dir or f"runs/{Path(self.env).name}-{self.algo}-{self.seed_label()}")
+
+    def seed_values(self) -> tuple[int, ...]:
+        """The seeds of the run's independent runs, in the order of the state's seed axis."""
+        return tuple(range(self.seed, self.seed + self.seeds))
+
+    def seed_label(self) -> str:
+        """``seed3`` for one seed, ``seeds0-4`` for several."""
+        return f"seed{self.seed}" if self.seeds == 1 else f"seeds{self.seed}-{self.seed + self.seeds - 1}"
+
+    def structure_fix(self, mismatch: StructureMismatch) -> str:
+        """The flag that lets this run's network take bodies it refused, and the value it needs."""
+        flag = f"--{mismatch.setting.replace('_', '-')}"
+        return f"train with {flag} {mismatch.needed} or more (this run has {getattr(self.network(), mismatch.setting)})"
 
     def steps_per_iteration(self, num_bodies: int) -> int:
         """Environment steps, summed over bodies, of one iteration."""

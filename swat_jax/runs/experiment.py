@@ -12,10 +12,22 @@ import jax
 
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch
-from swat_jax.networks import LimbNetwork, Params, check_structures, make_actor_critic
-from swat_jax.runs.checkpoint import Checkpoints
+from swat_jax.networks import (
+    LimbNetwork,
+    Params,
+    StructureMismatch,
+    check_structures,
+    make_actor_critic,
+)
+from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import ConfigError, TrainConfig, load_config
-from swat_jax.td3.iteration import TrainState, init_train_state, make_train_iteration
+from swat_jax.td3.evaluation import Episodes, make_evaluation
+from swat_jax.td3.iteration import (
+    TrainState,
+    init_seeded_train_state,
+    make_seeded_train_iteration,
+    seed_keys,
+)
 from swat_jax.td3.learner import Learner
 
 CONFIG_FILE = "config.json"
@@ -40,18 +52,21 @@ class Experiment:
         )
         network = config.network()
         try:
-            check_structures(network, env.structure)
-        except ValueError as error:
-            raise ConfigError(f"{config.algo} cannot take the bodies of {config.env}: {error}") from error
+            check_structures(network, env.structure, env.body_names)
+        except StructureMismatch as error:
+            raise ConfigError(
+                f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
+            ) from error
         actor, critic = make_actor_critic(network, env.observation_features)
         return cls(config, env, Learner(actor, critic, config.td3))
 
     def init_state(self) -> TrainState:
-        """Fresh networks, empty replay buffers and reset environments, from ``config.seed``.
+        """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
+        a leading seed axis (:data:`~swat_jax.td3.iteration.SEED_AXES`).
 
         Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies).
         """
-        return _committed(jax.jit(self._initial_state)(jax.random.PRNGKey(self.config.seed)))
+        return _committed(jax.jit(self._initial_state)(self._seed_keys()))
 
     def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, dict[str, Any]]:
         """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one,
@@ -61,18 +76,35 @@ class Experiment:
 
     def state_shapes(self) -> TrainState:
         """The shapes and dtypes of :meth:`init_state`, without allocating anything."""
-        return jax.eval_shape(self._initial_state, jax.random.PRNGKey(self.config.seed))
+        return jax.eval_shape(self._initial_state, self._seed_keys())
 
-    def _initial_state(self, rng: jax.Array) -> TrainState:
-        return init_train_state(self.env, self.learner, self.config.iteration, rng)
+    def _seed_keys(self) -> jax.Array:
+        return seed_keys(self.config.seed, self.config.seeds)
+
+    def _initial_state(self, rngs: jax.Array) -> TrainState:
+        return init_seeded_train_state(self.env, self.learner, self.config.iteration, rngs)
 
     def iteration(self) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
-        """The jitted training iteration; it consumes (donates) its input state."""
-        return jax.jit(make_train_iteration(self.env, self.learner, self.config.iteration), donate_argnums=0)
+        """The jitted training iteration of every seed; it consumes (donates) its input state."""
+        return jax.jit(
+            make_seeded_train_iteration(self.env, self.learner, self.config.iteration), donate_argnums=0
+        )
+
+    def evaluation(self) -> Callable[[Params, jax.Array], Episodes]:
+        """The jitted deterministic evaluation of actor parameters [S, ...] on the train bodies,
+        ``config.eval_episodes`` episodes each (:func:`swat_jax.td3.evaluation.make_evaluation`)."""
+        env = MultiTaskEnv(
+            [body.morphology for body in self.env.envs],
+            self.config.eval_episodes,
+            torso_relative_x=self.config.torso_relative_x,
+            reference_inorder=self.config.reference_inorder,
+        )
+        return jax.jit(make_evaluation(env, self.learner.actor))
 
     def info(self) -> dict[str, Any]:
         """What a policy needs besides its parameters, stored in every checkpoint."""
         return {
+            "seeds": list(self.config.seed_values()),
             "bodies": list(self.env.body_names),
             "max_limbs": self.env.max_limbs,
             "observation_features": self.env.observation_features,
@@ -91,30 +123,59 @@ def _committed(state: TrainState) -> TrainState:
 
 @dataclasses.dataclass(frozen=True)
 class TrainedPolicy:
-    """A run's actor and its newest parameters; ``act`` is deterministic (no exploration noise)."""
+    """A run's actor and its newest parameters, for every seed of the run; ``act`` is deterministic."""
 
     config: TrainConfig
     actor: LimbNetwork
     params: Params
+    """[S, ...] actor parameters stacked on a leading seed axis, in the order of ``seeds``."""
     info: dict[str, Any]
-    """env_steps, iterations, seconds, bodies, max_limbs, observation_features of the checkpoint."""
+    """env_steps, iterations, seconds, seeds, bodies, max_limbs, observation_features of the checkpoint."""
 
-    def act(self, observation: jax.Array, structure: StructureBatch) -> jax.Array:
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The seed of each slice of ``params``."""
+        return tuple(self.info["seeds"])
+
+    def seed_params(self, seed_index: int) -> Params:
+        """The parameters of the ``seed_index``-th seed (ConfigError naming the valid range if out of it)."""
+        if not 0 <= seed_index < len(self.seeds):
+            raise ConfigError(
+                f"--seed-index {seed_index}: {self.config.directory()} holds {len(self.seeds)} seeds "
+                f"({', '.join(map(str, self.seeds))}); use an index from 0 to {len(self.seeds) - 1}"
+            )
+        return jax.tree_util.tree_map(lambda leaf: leaf[seed_index], self.params)
+
+    def act(self, observation: jax.Array, structure: StructureBatch, seed_index: int = 0) -> jax.Array:
         """observation [batch, limbs, F] and one body's structure slice -> actions [batch, limbs] in [-1, 1]."""
-        return self.actor.apply(self.params, observation, structure)
+        return self.actor.apply(self.seed_params(seed_index), observation, structure)
 
 
 def load_policy(run_dir: str | Path) -> TrainedPolicy:
-    """The actor of the newest checkpoint of ``run_dir`` (ConfigError / CheckpointError if unusable)."""
+    """The actor of the newest checkpoint of ``run_dir``, every seed (ConfigError / CheckpointError if unusable)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise ConfigError(f"{run_dir}: no such run directory")
     config = load_config(run_dir / CONFIG_FILE)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
+        if checkpoints.latest_step() is None:
+            raise CheckpointError(
+                f"{run_dir} has no checkpoint yet, so there is no trained policy to load: training writes "
+                "one every --checkpoint-interval steps, at its end and when it is stopped"
+            )
         info = checkpoints.info()
+        if "seeds" not in info:
+            raise CheckpointError(
+                f"{checkpoints.directory} was written before runs had a seed axis (swat_jax 0.1.0 before "
+                "multi-seed training); train the run again"
+            )
         actor, _ = make_actor_critic(config.network(), int(info["observation_features"]))
-        params = checkpoints.restore_actor(jax.eval_shape(actor.init, jax.random.PRNGKey(0)))
+        one_seed = jax.eval_shape(actor.init, jax.random.PRNGKey(0))
+        template = jax.tree_util.tree_map(
+            lambda leaf: jax.ShapeDtypeStruct((len(info["seeds"]), *leaf.shape), leaf.dtype), one_seed
+        )
+        params = checkpoints.restore_actor(template)
     finally:
         checkpoints.close()
     return TrainedPolicy(config, actor, params, info)

@@ -1,33 +1,42 @@
-"""Training metrics of a run: ``metrics.csv`` (one row per log interval) and TensorBoard event files.
+"""Training metrics of a run: ``metrics.csv`` (one row per seed per log interval) and TensorBoard event
+files (``tensorboard/seed<k>/``, one TensorBoard run per seed).
 
-Rows are keyed by ``env_steps`` (summed over bodies). On resume, rows written after the checkpoint
-being resumed from are dropped first, so the CSV of a resumed run has no repeated steps.
+Rows are keyed by ``env_steps`` (summed over bodies, per seed). On resume, rows written after the
+checkpoint being resumed from are dropped first, so the CSV of a resumed run has no repeated steps.
+:class:`MetricsWindow` sums what the iterations report between two rows.
 """
 
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 from tensorboardX import SummaryWriter
 
 CSV_FILE = "metrics.csv"
 TENSORBOARD_DIR = "tensorboard"
+LOSSES = ("critic_loss", "actor_loss")
 
 
 class MetricsWriter:
-    """Appends rows of scalars to the CSV and to TensorBoard (NaN, e.g. no finished episode, is skipped there)."""
+    """Appends rows of scalars to the CSV and to each seed's TensorBoard run (NaN, e.g. no finished
+    episode, is skipped there)."""
 
     def __init__(self, run_dir: Path, resumed_at: int | None = None):
         self.path = Path(run_dir) / CSV_FILE
         self.columns: list[str] | None = None
         if resumed_at is not None and self.path.exists():
             self._truncate(resumed_at)
-        self.tensorboard = SummaryWriter(str(Path(run_dir) / TENSORBOARD_DIR))
+        self.tensorboard_dir = Path(run_dir) / TENSORBOARD_DIR
+        self.tensorboard: dict[int, SummaryWriter] = {}
 
     def write(self, row: dict[str, float]) -> None:
-        """One row; the first row fixes the CSV columns (env_steps first)."""
+        """One row (``env_steps`` and ``seed`` among its columns); the first row fixes the CSV columns
+        (env_steps first)."""
         if self.columns is None:
             self.columns = list(row)
             if not self.path.exists() or self.path.stat().st_size == 0:
@@ -35,14 +44,17 @@ class MetricsWriter:
                     csv.writer(file).writerow(self.columns)
         with self.path.open("a", newline="") as file:
             csv.writer(file).writerow([_format(row.get(column, math.nan)) for column in self.columns])
-        step = int(row["env_steps"])
+        step, seed = int(row["env_steps"]), int(row["seed"])
+        if seed not in self.tensorboard:
+            self.tensorboard[seed] = SummaryWriter(str(self.tensorboard_dir / f"seed{seed}"))
         for tag, value in row.items():
-            if tag != "env_steps" and math.isfinite(value):
-                self.tensorboard.add_scalar(tag, value, step)
-        self.tensorboard.flush()
+            if tag not in ("env_steps", "seed") and math.isfinite(value):
+                self.tensorboard[seed].add_scalar(tag, value, step)
+        self.tensorboard[seed].flush()
 
     def close(self) -> None:
-        self.tensorboard.close()
+        for writer in self.tensorboard.values():
+            writer.close()
 
     def _truncate(self, last_step: int) -> None:
         with self.path.open(newline="") as file:
@@ -66,3 +78,88 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
     """The CSV rows as floats (empty cells as NaN)."""
     with (Path(run_dir) / CSV_FILE).open(newline="") as file:
         return [{k: float(v) if v else math.nan for k, v in row.items()} for row in csv.DictReader(file)]
+
+
+class MetricsWindow:
+    """Per-seed sums since the last metrics row: each iteration's mean losses and the episodes each body
+    finished (sums of returns and lengths, and their count).
+
+    Saved in checkpoints (:meth:`to_json`), so the row after a resume sums the same iterations, in the same
+    order, as an uninterrupted run's.
+    """
+
+    def __init__(self, seeds: int, bodies: int, saved: dict[str, Any] | None = None):
+        saved = saved or {}
+        self.iterations = int(saved.get("iterations", 0))
+        self.sums = {
+            name: np.array(saved.get(name, np.zeros(shape)), np.float64)
+            for name, shape in self._shapes(seeds, bodies).items()
+        }
+
+    @staticmethod
+    def _shapes(seeds: int, bodies: int) -> dict[str, tuple[int, ...]]:
+        return {
+            **{name: (seeds,) for name in LOSSES},
+            **{name: (seeds, bodies) for name in ("return_sum", "length_sum", "count")},
+        }
+
+    def add(self, metrics: dict[str, Any]) -> None:
+        """One iteration's metrics: losses [S, updates] and ``episodes`` (EpisodeStats of [S, K] arrays)."""
+        for name in LOSSES:
+            self.sums[name] += np.mean(np.asarray(metrics[name]), axis=-1)
+        episodes = metrics["episodes"]
+        for name in ("return_sum", "length_sum", "count"):
+            self.sums[name] += np.asarray(getattr(episodes, name))
+        self.iterations += 1
+
+    def rows(self, seeds: Sequence[int], body_names: Sequence[str]) -> list[dict[str, float]]:
+        """One row per seed: mean losses over the window's iterations, the mean return over bodies of the
+        episodes they finished, and per body the mean return, mean length and count of those episodes."""
+        count = self.sums["count"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            returns = self.sums["return_sum"] / count
+            lengths = self.sums["length_sum"] / count
+        rows = []
+        for index, seed in enumerate(seeds):
+            finished = returns[index][count[index] > 0]
+            row: dict[str, float] = {"seed": seed}
+            row |= {name: float(self.sums[name][index] / max(self.iterations, 1)) for name in LOSSES}
+            row["mean_return"] = float(np.mean(finished)) if finished.size else math.nan
+            for body, episode_return, length, n in zip(
+                body_names, returns[index], lengths[index], count[index], strict=True
+            ):
+                label = Path(body).stem
+                row[f"return/{label}"] = float(episode_return)
+                row[f"length/{label}"] = float(length)
+                row[f"episodes/{label}"] = int(n)
+            rows.append(row)
+        return rows
+
+    def to_json(self) -> dict[str, Any]:
+        """The sums as JSON-ready lists (float64 values round-trip exactly)."""
+        return {"iterations": self.iterations, **{k: v.tolist() for k, v in self.sums.items()}}
+
+    def clear(self) -> None:
+        self.iterations = 0
+        for values in self.sums.values():
+            values[...] = 0
+
+
+def evaluation_columns(
+    returns: np.ndarray, lengths: np.ndarray, body_names: Sequence[str]
+) -> list[dict[str, float]]:
+    """Per seed, the ``eval/*`` columns of a metrics row from deterministic episodes ``returns`` and
+    ``lengths`` [S, K, E]: ``eval/mean_return`` (the mean over bodies of their mean returns), and per
+    body ``eval/return/<body>`` and ``eval/length/<body>``. NaN inputs give NaN columns (a row without
+    an evaluation)."""
+    body_returns = np.mean(returns, axis=-1, dtype=np.float64)
+    body_lengths = np.mean(lengths, axis=-1, dtype=np.float64)
+    rows = []
+    for seed_returns, seed_lengths in zip(body_returns, body_lengths, strict=True):
+        row = {"eval/mean_return": float(np.mean(seed_returns))}
+        for body, episode_return, length in zip(body_names, seed_returns, seed_lengths, strict=True):
+            label = Path(body).stem
+            row[f"eval/return/{label}"] = float(episode_return)
+            row[f"eval/length/{label}"] = float(length)
+        rows.append(row)
+    return rows

@@ -7,18 +7,22 @@ buffer holds one ring per task, and the update vmaps its losses over tasks. Expl
 paper: uniform random actions for each task's first ``random_steps`` steps, then the policy plus
 Gaussian noise (std ``exploration_noise``), clipped to [-1, 1]. Updates start once every task's buffer
 holds a full batch.
+
+Seeds are one more batch axis: :func:`make_seeded_train_iteration` vmaps the iteration over a leading
+seed axis of the state (:data:`SEED_AXES`), so N independent runs are one compiled program.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
+from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
 
@@ -33,6 +37,30 @@ class TrainState:
     rng: jax.Array
     env_steps: jax.Array
     """[] int32 environment steps taken per task, summed over its copies (copies x chunk per iteration)."""
+
+
+SEED_AXES = TrainState(
+    learner=LearnerState(
+        actor_params=0,
+        critic_params=0,
+        target_actor_params=0,
+        target_critic_params=0,
+        actor_optimizer=0,
+        critic_optimizer=0,
+        updates=None,
+    ),
+    buffer=ReplayBuffer(data=0, position=None, size=None),
+    env=0,
+    rng=0,
+    env_steps=None,
+)
+"""vmap axes of a multi-seed :class:`TrainState`.
+
+Each seed owns its networks, optimizer states, replay data, environments and keys (axis 0). The step
+counters are equal in every seed and shared (no axis): the branches that depend on them (updates start
+once the buffers hold a batch, the delayed actor step) then stay branches under vmap, instead of
+becoming selects that compute both sides for every seed.
+"""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,12 +93,35 @@ def init_train_state(
     )
 
 
+def init_seeded_train_state(
+    env: MultiTaskEnv, learner: Learner, config: IterationConfig, rngs: jax.Array
+) -> TrainState:
+    """One fresh :func:`init_train_state` per key of ``rngs`` [S], stacked on a leading seed axis."""
+    init = functools.partial(init_train_state, env, learner, config)
+    return jax.vmap(init, out_axes=SEED_AXES)(rngs)
+
+
+def seed_keys(first_seed: int, seeds: int) -> jax.Array:
+    """[seeds] keys of seeds ``first_seed .. first_seed + seeds - 1``; key k is ``PRNGKey(first_seed + k)``,
+    so seed k of a multi-seed run is the single-seed run with that seed."""
+    return jax.vmap(jax.random.PRNGKey)(jnp.arange(first_seed, first_seed + seeds))
+
+
+def make_seeded_train_iteration(
+    env: MultiTaskEnv, learner: Learner, config: IterationConfig
+) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
+    """:func:`make_train_iteration` over a leading seed axis (:data:`SEED_AXES`); metrics get a leading
+    [S] axis. Jit it once: one compilation serves every seed."""
+    return jax.vmap(make_train_iteration(env, learner, config), in_axes=(SEED_AXES,), out_axes=(SEED_AXES, 0))
+
+
 def make_train_iteration(
     env: MultiTaskEnv, learner: Learner, config: IterationConfig
 ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
     """The pure ``iteration(state) -> (state, metrics)``; jit it once.
 
-    metrics: per-update critic and actor losses [updates], and per-task rewards of the chunk [chunk, K, n].
+    metrics: per-update critic and actor losses [updates], per-task rewards of the chunk [chunk, K, n], and
+    ``episodes``, the sums over the episodes each task finished during this iteration (EpisodeStats, [K]).
     """
     structure = jax.tree_util.tree_map(jnp.asarray, env.structure)
     mask = structure.limb_mask[:, None, :]
@@ -121,11 +172,13 @@ def make_train_iteration(
         return (learner_state, buffer), metrics
 
     def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies)))
         state, rewards = jax.lax.scan(collect, state, None, length=config.chunk)
         rng, update_key = jax.random.split(state.rng)
         (learner_state, _), metrics = jax.lax.scan(
             update, (state.learner, state.buffer), jax.random.split(update_key, config.updates)
         )
-        return state.replace(learner=learner_state, rng=rng), {**metrics, "reward": rewards}
+        metrics = {**metrics, "reward": rewards, "episodes": state.env.episodes}
+        return state.replace(learner=learner_state, rng=rng), metrics
 
     return iteration

@@ -72,22 +72,25 @@ def check_buffer_fits(
     features: int,
     free_bytes: int,
     *,
+    seeds: int = 1,
     flag: str = "--replay-capacity",
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
 
     Args:
         free_bytes: memory available for the buffers' device (see :func:`free_memory_bytes`).
+        seeds: independent runs, each with its own buffers.
         flag: the option that sets ``capacity``, named in the error.
     """
-    needed = buffer_bytes(tasks, capacity, max_limbs, features)
+    needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features)
     usable = int(USABLE_FRACTION * free_bytes)
+    runs = f"{seeds} seeds x " if seeds > 1 else ""
     report = (
-        f"replay buffers: {needed / GIB:.2f} GiB ({tasks} tasks x {capacity:,} transitions x "
+        f"replay buffers: {needed / GIB:.2f} GiB ({runs}{tasks} tasks x {capacity:,} transitions x "
         f"{max_limbs} limbs x {features} features)"
     )
     if needed > usable:
-        fitting = usable // buffer_bytes(tasks, 1, max_limbs, features)
+        fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features))
         raise MemoryError(
             f"{report} do not fit in {usable / GIB:.2f} GiB ({USABLE_FRACTION:.0%} of the "
             f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting:,}"

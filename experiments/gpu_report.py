@@ -1,0 +1,384 @@
+"""The GPU report: the figures that "accelerated" rests on, in one command, as JSON and Markdown.
+
+One run measures, each configuration in a fresh process (its compilation and memory peak its own):
+
+1. Multi-task MJX environment steps per second (every training body of a set, K bodies x n copies, random
+   actions, :func:`env_benchmark.throughput_worker`) on Hopper++, Animal-Walkers and CWHH++ over 1, 16,
+   256 and 2048 copies per body. A set's sweep stops once throughput grows by less than ``MIN_GAIN`` over
+   the previous count, or a run runs out of memory or of the time budget. Each set also runs on MuJoCo C
+   on every core of the host (one process per core, :func:`env_benchmark.c_steps_per_second_on_cores`).
+2. Trace (lower) and XLA compile seconds of every configuration, with the persistent compilation cache as
+   configured (a fresh machine's is empty, so the times are cold; ``SWAT_JAX_COMPILATION_CACHE=0`` makes
+   them cold anywhere).
+3. TD3 update throughput of the paper-sized SWAT (Table 1) on Animal-Walkers and CWHH++: batch 100 per
+   body, all bodies in one vmapped update (:func:`update_benchmark.vmapped_throughput`).
+4. Peak device memory and peak RSS of every configuration; the device, the host, the software versions.
+
+The whole run keeps to ``--budget`` seconds (420 by default, well inside 9 minutes on an H100 or H200
+once the image has started): a run stops when the budget ends, and a configuration expected to take
+longer than what is left (its series' previous run took longer) is not started; both are listed under
+"not measured". ``--tiny`` runs the same code on a CPU in CI time: the hopper set at 1 and 2 copies, a
+few steps, a width-16 one-layer SWAT::
+
+    python experiments/gpu_report.py --out reports/gpu           # reports/gpu/report.json, report.md
+    python experiments/gpu_report.py --tiny --out /tmp/gpu_report
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from env_benchmark import (
+    WORKERS,
+    WorkerError,
+    c_steps_per_second_on_cores,
+    display_name,
+    gib,
+    in_subprocess,
+    peak_memory,
+    progress,
+    run_worker,
+    sweep_copies,
+    throughput_spec,
+    train_bodies,
+)
+from machine import cpu_model, host_cores, host_memory_gib
+from update_benchmark import vmapped_throughput
+
+from swat_jax.compilation_cache import cache_directory
+from swat_jax.networks import network_config
+
+MIN_GAIN = 1.05
+"""A set's copy sweep stops once steps/s grows by less than this factor over the previous count."""
+MIN_START_S = 5.0
+"""No worker starts with less time than this left in the budget."""
+REPORT_FILES = ("report.json", "report.md")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportSettings:
+    """What one report measures, and its time budget."""
+
+    sets: tuple[str, ...]
+    """Environment sets whose training bodies are stepped, in this order."""
+    copies: tuple[int, ...]
+    """Copies per body of the sweep, increasing."""
+    steps: int
+    """Env steps per timed call (one lax.scan inside one jit)."""
+    repeats: int
+    """Timed calls per configuration (median, after a warm-up call)."""
+    c_steps: int
+    """Env steps per body in each MuJoCo C process."""
+    update_sets: tuple[str, ...]
+    """Sets whose TD3 update is timed (each right after its env sweep)."""
+    network: str
+    """Network variant of the update, a name network_config takes."""
+    network_overrides: dict[str, int]
+    """NetworkConfig fields that differ from the named variant (none: the paper's sizes)."""
+    batch: int
+    """Sampled transitions per body per update."""
+    updates: int
+    """Updates per timed call (scanned in one jit)."""
+    budget_s: float
+    """Seconds the whole report may take."""
+
+
+FULL = ReportSettings(
+    sets=("hopper", "animal_walkers", "cwhh"),
+    copies=(1, 16, 256, 2048),
+    steps=100,
+    repeats=3,
+    c_steps=1000,
+    update_sets=("animal_walkers", "cwhh"),
+    network="swat",
+    network_overrides={},
+    batch=100,
+    updates=20,
+    budget_s=420.0,
+)
+TINY = ReportSettings(
+    sets=("hopper",),
+    copies=(1, 2),
+    steps=5,
+    repeats=1,
+    c_steps=20,
+    update_sets=("hopper",),
+    network="swat",
+    network_overrides={"width": 16, "heads": 1, "layers": 1, "feedforward": 32},
+    batch=8,
+    updates=2,
+    budget_s=300.0,
+)
+
+
+def update_worker(
+    set_name: str, network: str, overrides: dict[str, int], batch: int, updates: int, repeats: int
+) -> dict[str, Any]:
+    """TD3 update throughput of ``network`` on every training body of ``set_name``, and peak memory."""
+    result = vmapped_throughput(set_name, network_config(network, **overrides), batch, updates, repeats)
+    return {**result, **peak_memory()}
+
+
+REPORT_WORKERS = {**WORKERS, "update": update_worker}
+
+
+class Budget:
+    """The report's time budget: runs worker processes of this script only where they fit in it."""
+
+    def __init__(self, seconds: float):
+        self.seconds = seconds
+        self.deadline = time.perf_counter() + seconds
+        self.last_seconds: dict[str, float] = {}
+        """Wall seconds of the previous run of each series (a set's sweep, the updates)."""
+
+    def left(self) -> float:
+        return self.deadline - time.perf_counter()
+
+    def run(self, spec: dict[str, Any], series: str) -> dict[str, Any]:
+        """The result of ``spec`` in a fresh process, stopped when the budget ends.
+
+        Raises:
+            WorkerError: ``timed_out`` when the run was stopped, or not started because less time is left
+                than ``MIN_START_S`` or than the series' previous run took; ``out_of_memory`` when it ran
+                out of device memory.
+        """
+        left = self.left()
+        needed = max(MIN_START_S, self.last_seconds.get(series, 0.0))
+        if left < needed:
+            raise WorkerError(f"{left:.0f} s left of the budget, {needed:.0f} s expected", timed_out=True)
+        start = time.perf_counter()
+        result = in_subprocess(spec, script=__file__, timeout=left)
+        self.last_seconds[series] = time.perf_counter() - start
+        return result
+
+
+def environment_rows(
+    set_name: str, settings: ReportSettings, budget: Budget, started: float
+) -> tuple[list[dict[str, Any]], str, float]:
+    """The throughput rows of one set's copy sweep (each with MuJoCo C's rate), why the sweep stopped, and
+    MuJoCo C's steps per second on every core."""
+    cores = host_cores()
+    progress(
+        f"{display_name(set_name)}: MuJoCo C on {cores} processes, {settings.c_steps} steps per body", started
+    )
+    c_rate = c_steps_per_second_on_cores(train_bodies(set_name), settings.c_steps, cores)
+
+    def measure(copies: int) -> dict[str, Any]:
+        return budget.run(
+            throughput_spec(set_name, copies, settings.steps, settings.repeats), series=set_name
+        )
+
+    rows, stop = sweep_copies(set_name, settings.copies, measure, MIN_GAIN, started)
+    for row in rows:
+        row.update(c_steps_per_second=c_rate, mjx_over_c=row["steps_per_second"] / c_rate)
+    return rows, stop, c_rate
+
+
+def update_row(set_name: str, settings: ReportSettings, budget: Budget, started: float) -> dict[str, Any]:
+    """The TD3 update measurement of one set (WorkerError when it ran out of time or memory)."""
+    progress(
+        f"{display_name(set_name)}: TD3 update of {settings.network}, batch {settings.batch} per body",
+        started,
+    )
+    spec = {
+        "kind": "update",
+        "set_name": set_name,
+        "network": settings.network,
+        "overrides": settings.network_overrides,
+        "batch": settings.batch,
+        "updates": settings.updates,
+        "repeats": settings.repeats,
+    }
+    row = {
+        "set": set_name,
+        "network": settings.network,
+        "batch_per_body": settings.batch,
+        **budget.run(spec, "update"),
+    }
+    progress(
+        f"  {row['transitions_per_second']:,.0f} transitions/s (compile {row['compile_s']:.1f} s)", started
+    )
+    return row
+
+
+def measure_report(settings: ReportSettings, command: str) -> dict[str, Any]:
+    """Every measurement of ``settings``, as the report's JSON object."""
+    started = time.perf_counter()
+    budget = Budget(settings.budget_s)
+    info = budget.run({"kind": "info"}, "info")
+    environment, updates, stops, c_rates, not_measured = [], [], {}, {}, []
+    for set_name in settings.sets:
+        rows, stops[set_name], c_rates[set_name] = environment_rows(set_name, settings, budget, started)
+        environment.extend(rows)
+        if stops[set_name].startswith(("out of time", "out of memory")):
+            not_measured.append(f"{display_name(set_name)}: {stops[set_name]} and more")
+        if set_name in settings.update_sets:
+            try:
+                updates.append(update_row(set_name, settings, budget, started))
+            except WorkerError as error:
+                if not (error.timed_out or error.out_of_memory):
+                    raise
+                reason = "out of time" if error.timed_out else "out of memory"
+                not_measured.append(f"{display_name(set_name)}: TD3 update, {reason}")
+    peaks = [row["device_peak_gib"] for row in environment + updates if row["device_peak_gib"] is not None]
+    return {
+        "command": command,
+        "settings": dataclasses.asdict(settings),
+        "machine": {
+            "cpu": cpu_model(),
+            "cores": host_cores(),
+            "memory_gib": round(host_memory_gib(), 1),
+            "platform": info["platform"],
+            "device": info["device"],
+            "device_count": info["device_count"],
+        },
+        "software": info["versions"],
+        "compilation_cache": str(cache_directory() or "off"),
+        "mujoco_c_steps_per_second": c_rates,
+        "environment": environment,
+        "sweep_stops": stops,
+        "td3_update": updates,
+        "peak_device_memory_gib": max(peaks, default=None),
+        "not_measured": not_measured,
+        "total_s": time.perf_counter() - started,
+    }
+
+
+def environment_table(report: dict[str, Any]) -> list[str]:
+    cores = report["machine"]["cores"]
+    lines = [
+        f"| set | bodies x max limbs | copies | MJX steps/s | MuJoCo C steps/s ({cores} processes) | MJX / C "
+        "| trace (s) | compile (s) | device peak (GiB) | peak RSS (GiB) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["environment"]:
+        lines.append(
+            f"| {display_name(row['set'])} | {row['bodies']}x{row['max_limbs']} | {row['copies']} "
+            f"| {row['steps_per_second']:,.0f} | {row['c_steps_per_second']:,.0f} | {row['mjx_over_c']:.2f} "
+            f"| {row['trace_s']:.1f} | {row['compile_s']:.1f} | {gib(row['device_peak_gib'])} | {gib(row['rss_gib'])} |"
+        )
+    return lines
+
+
+def update_table(report: dict[str, Any]) -> list[str]:
+    lines = [
+        "| set | network | actor / critic parameters | bodies x batch | trace (s) | compile (s) | updates/s "
+        "| transitions/s | device peak (GiB) | peak RSS (GiB) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["td3_update"]:
+        lines.append(
+            f"| {display_name(row['set'])} | {row['network']} | {row['actor_parameters']:,} / "
+            f"{row['critic_parameters']:,} | {row['tasks']}x{row['batch_per_body']} | {row['trace_s']:.1f} "
+            f"| {row['compile_s']:.1f} | {row['updates_per_second']:,.1f} | {row['transitions_per_second']:,.0f} "
+            f"| {gib(row['device_peak_gib'])} | {gib(row['rss_gib'])} |"
+        )
+    return lines
+
+
+def markdown(report: dict[str, Any]) -> str:
+    """The report as Markdown: machine and software, the two tables, sweep stops, what was not measured."""
+    machine, settings = report["machine"], report["settings"]
+    device = (
+        "CPU only" if machine["platform"] == "cpu" else f"{machine['device_count']} x {machine['device']}"
+    )
+    software = ", ".join(f"{name} {version}" for name, version in report["software"].items())
+    stops = "; ".join(
+        f"{display_name(name)}: {stop or 'every count ran'}" for name, stop in report["sweep_stops"].items()
+    )
+    peak = report["peak_device_memory_gib"]
+    lines = [
+        "# GPU report",
+        "",
+        f"Machine: {machine['cpu']}, {machine['cores']} cores, {machine['memory_gib']:.0f} GiB; {device} "
+        f"({machine['platform']})  ",
+        f"Software: {software}  ",
+        f"Command: `{report['command']}`, {report['total_s']:.0f} s of a {settings['budget_s']:.0f} s budget; "
+        f"persistent compilation cache: {report['compilation_cache']}",
+        "",
+        f"## Environment steps per second ({settings['steps']} steps per timed call, median of "
+        f"{settings['repeats']}; random actions; every training body of the set)",
+        "",
+        *environment_table(report),
+        "",
+        f"Copy sweeps: {stops}.",
+        "",
+        f"## TD3 update (every body of the set in one vmapped update, {settings['updates']} updates per timed call)",
+        "",
+        *update_table(report),
+        "",
+        f"Peak device memory: {'not reported by this backend' if peak is None else f'{peak:.2f} GiB'}.",
+    ]
+    if report["not_measured"]:
+        lines += ["", f"Not measured: {'; '.join(report['not_measured'])}."]
+    return "\n".join(lines) + "\n"
+
+
+def write_report(report: dict[str, Any], folder: Path) -> list[Path]:
+    """``report.json`` and ``report.md`` in ``folder`` (created)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    json_path, markdown_path = (folder / name for name in REPORT_FILES)
+    json_path.write_text(json.dumps(report, indent=2) + "\n")
+    markdown_path.write_text(markdown(report))
+    return [json_path, markdown_path]
+
+
+def settings_from(args: argparse.Namespace) -> ReportSettings:
+    """FULL or TINY, with the options given on the command line."""
+    settings = TINY if args.tiny else FULL
+    chosen = {
+        "sets": args.sets,
+        "copies": args.copies,
+        "update_sets": args.update_sets,
+        "budget_s": args.budget,
+    }
+    return dataclasses.replace(settings, **{key: value for key, value in chosen.items() if value is not None})
+
+
+def parse_arguments() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, help="folder for report.json and report.md")
+    parser.add_argument(
+        "--tiny", action="store_true", help="CPU-sized: hopper, copies 1 2, a few steps, tiny SWAT"
+    )
+    parser.add_argument(
+        "--sets", nargs="+", type=str, help=f"environment sets (default {' '.join(FULL.sets)})"
+    )
+    parser.add_argument(
+        "--copies", nargs="+", type=int, help=f"copies per body (default {' '.join(map(str, FULL.copies))})"
+    )
+    parser.add_argument(
+        "--update-sets",
+        nargs="*",
+        type=str,
+        help=f"sets whose update is timed (default {' '.join(FULL.update_sets)})",
+    )
+    parser.add_argument(
+        "--budget", type=float, help=f"seconds the report may take (default {FULL.budget_s:.0f})"
+    )
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker is None and args.out is None:
+        parser.error("--out is required")
+    return args
+
+
+def main() -> None:
+    args = parse_arguments()
+    if args.worker:
+        run_worker(json.loads(args.worker), REPORT_WORKERS)
+        return
+    report = measure_report(settings_from(args), f"python {' '.join(sys.argv)}")
+    paths = write_report(report, args.out)
+    print(markdown(report))
+    print(f"wrote {', '.join(map(str, paths))}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,89 @@
+"""Deterministic evaluation of a policy in every task at once: the paper's evaluation return.
+
+One program steps every body of a :class:`~swat_jax.envs.multi_task.MultiTaskEnv` (its ``copies`` are
+the evaluation episodes of each body) with the actor's actions, no exploration noise, for every seed of
+a run (a leading seed axis of the actor parameters), until each copy's first episode has terminated or
+reached the time limit. Every seed meets the same initial states. Used by ``python -m swat_jax.eval``
+and, every ``--eval-interval`` steps, by training.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from swat_jax.envs.multi_task import MultiTaskEnv
+from swat_jax.networks import LimbNetwork, Params
+
+
+@struct.dataclass
+class Episodes:
+    """The first episode of every evaluation copy."""
+
+    returns: jax.Array
+    """[S, K, E] undiscounted returns (S seeds, K bodies, E episodes per body)."""
+    lengths: jax.Array
+    """[S, K, E] int32 lengths in environment steps."""
+    qpos: tuple[jax.Array, ...]
+    """Per body, [max_steps + 1, nq_k] joint positions of the first seed's first episode: its first
+    ``length`` rows are the initial pose and the poses after each step but the last (the copy is reset in
+    the step that ends its episode); zeros after them; [0, nq_k] unless recorded."""
+
+
+def make_evaluation(
+    env: MultiTaskEnv, actor: LimbNetwork, *, record: bool = False
+) -> Callable[[Params, jax.Array], Episodes]:
+    """The pure ``evaluate(params [S, ...], rng) -> Episodes``; jit it once per run.
+
+    Args:
+        env: the bodies to evaluate; ``env.copies`` episodes per body.
+        actor: the policy network (``actor.apply(params, observation [n, L, F], structure)``).
+        record: also keep the joint positions of seed 0's first episode of every body (for videos).
+    """
+    structure = jax.tree_util.tree_map(jnp.asarray, env.structure)
+    max_steps = max(body.morphology.family.max_episode_steps for body in env.envs)
+    act = jax.vmap(jax.vmap(actor.apply, in_axes=(None, 0, 0)), in_axes=(0, 0, None))
+
+    def evaluate(params: Params, rng: jax.Array) -> Episodes:
+        seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
+        start = env.reset(rng)
+        states = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (seeds, *x.shape)), start)
+        shape = (seeds, env.num_bodies, env.copies)
+        tracks = tuple(
+            jnp.zeros((max_steps + 1 if record else 0, body.mj_model.nq)).at[:1].set(data.data.qpos[:1])
+            for body, data in zip(env.envs, start.bodies, strict=True)
+        )
+
+        def unfinished(carry) -> jax.Array:
+            t, _, finished, *_ = carry
+            return (t < max_steps) & ~jnp.all(finished)
+
+        def step(carry):
+            t, states, finished, returns, lengths, tracks = carry
+            actions = act(params, states.observation, structure)
+            next_states, result = jax.vmap(env.step)(states, actions)
+            returns = returns + jnp.where(finished, 0.0, result.reward)
+            lengths = lengths + (~finished).astype(jnp.int32)
+            finished = finished | result.terminated | result.truncated
+            if record:
+                tracks = tuple(
+                    track.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.data.qpos[0, 0]))
+                    for k, (track, body) in enumerate(zip(tracks, next_states.bodies, strict=True))
+                )
+            return t + 1, next_states, finished, returns, lengths, tracks
+
+        carry = (
+            jnp.zeros((), jnp.int32),
+            states,
+            jnp.zeros(shape, bool),
+            jnp.zeros(shape, jnp.float32),
+            jnp.zeros(shape, jnp.int32),
+            tracks,
+        )
+        *_, returns, lengths, tracks = jax.lax.while_loop(unfinished, step, carry)
+        return Episodes(returns=returns, lengths=lengths, qpos=tracks)
+
+    return evaluate
