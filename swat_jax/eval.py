@@ -30,6 +30,7 @@ from swat_jax.networks import StructureMismatch, check_structures
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
 from swat_jax.runs.experiment import TrainedPolicy, load_policy
+from swat_jax.runs.metrics import standard_error
 from swat_jax.td3.evaluation import make_evaluation
 
 SPLITS = ("train", "test", "all")
@@ -71,13 +72,6 @@ class BodyEvaluation:
             "length_se": standard_error(seed_lengths),
             "length_std": float(np.std(self.lengths)),
         }
-
-
-def standard_error(values: np.ndarray) -> float:
-    """Standard error of the mean of ``values`` [n] (sample standard deviation / sqrt(n)); NaN for n < 2."""
-    if len(values) < 2:
-        return math.nan
-    return float(np.std(values, ddof=1) / math.sqrt(len(values)))
 
 
 def evaluate(
@@ -137,10 +131,13 @@ def evaluate(
 
 
 def selected_bodies(policy: TrainedPolicy, split: str, bodies: Sequence[str]) -> tuple[str, ...]:
-    """``bodies`` if given, else the run's set's ``split``; ValueError for an empty split."""
+    """``bodies`` if given; else for ``train`` the bodies the run trained on, for ``test`` its set's
+    held-out bodies, for ``all`` both (without repeats); ValueError for an empty split."""
     if bodies:
         return tuple(bodies)
-    chosen = get_set(policy.config.env).split(split)
+    trained = policy.config.training_bodies()
+    held_out = get_set(policy.config.env).split("test")
+    chosen = {"train": trained, "test": held_out, "all": tuple(dict.fromkeys(trained + held_out))}[split]
     if not chosen:
         raise ValueError(
             f"environment set {policy.config.env} has no {split} bodies; use --split train or name --bodies"
@@ -199,13 +196,18 @@ def build_parser() -> argparse.ArgumentParser:
         "multi-seed run, every seed and the mean and standard error over seeds.",
     )
     parser.add_argument(
-        "run_dir", type=Path, metavar="RUN_DIR", help="run directory written by swat_jax.train"
+        "run_dirs",
+        type=Path,
+        nargs="+",
+        metavar="RUN_DIR",
+        help="run directories written by swat_jax.train (several: one table, or one --markdown column, each)",
     )
     parser.add_argument(
         "--split",
         choices=SPLITS,
         default="train",
-        help="bodies of the run's environment set: train (default), test (held-out, zero-shot) or all",
+        help="train (default): the bodies the run trained on; test: its environment set's held-out bodies "
+        "(zero-shot); all: both",
     )
     parser.add_argument(
         "--bodies",
@@ -223,18 +225,37 @@ def build_parser() -> argparse.ArgumentParser:
         help="evaluate only the K-th seed of a multi-seed run (an index into its seeds; default: every seed, "
         "summarised as the mean ± standard error over seeds)",
     )
-    parser.add_argument("--json", action="store_true", help="print the results as JSON instead of a table")
+    output = parser.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true", help="print the results as JSON instead of a table")
+    output.add_argument(
+        "--markdown",
+        action="store_true",
+        help="print one Markdown table, a row per body and a column per run: the mean ± standard error over "
+        "seeds of each seed's mean return (the paper's Tables 3-4)",
+    )
     parser.add_argument(
         "--video", type=Path, metavar="DIR", help="also write DIR/<body>.mp4 of each body's first episode"
     )
     return parser
 
 
-def run(args: argparse.Namespace) -> str:
-    """Evaluate (and render) per the parsed command line; returns the text to print."""
-    policy = load_policy(args.run_dir)
+@dataclasses.dataclass(frozen=True)
+class RunEvaluation:
+    """One run directory's policy and its evaluation per body."""
+
+    run_dir: Path
+    policy: TrainedPolicy
+    results: list[BodyEvaluation]
+
+    def label(self) -> str:
+        return self.policy.config.algo
+
+
+def evaluate_run(run_dir: Path, args: argparse.Namespace) -> RunEvaluation:
+    """Evaluate the newest checkpoint of ``run_dir`` as the parsed command line says."""
+    policy = load_policy(run_dir)
     bodies = selected_bodies(policy, args.split, args.bodies)
-    print(f"evaluating {', '.join(Path(body).stem for body in bodies)} ...", file=sys.stderr)
+    print(f"{run_dir}: evaluating {', '.join(Path(body).stem for body in bodies)} ...", file=sys.stderr)
     results = evaluate(
         policy,
         bodies,
@@ -250,20 +271,66 @@ def run(args: argparse.Namespace) -> str:
         for body, result in zip(bodies, results, strict=True):
             path = render_rollout(body, result.qpos, args.video / f"{result.body}.mp4")
             print(f"wrote {path}", file=sys.stderr)
+    return RunEvaluation(run_dir, policy, results)
+
+
+def markdown_table(runs: Sequence[RunEvaluation], episodes: int) -> str:
+    """A Markdown table, a row per body (in order of first appearance) and a column per run: mean ± standard
+    error over seeds of each seed's mean return ("mean" alone for one seed; "-" where a run has no such
+    body). Columns are labelled by algorithm, or by run directory where algorithms repeat."""
+    labels = [run.label() for run in runs]
+    if len(set(labels)) < len(labels):
+        labels = [run.run_dir.name for run in runs]
+    bodies = list(dict.fromkeys(result.body for run in runs for result in run.results))
+    lines = ["| body | " + " | ".join(labels) + " |", "|---|" + "---|" * len(runs)]
+    for body in bodies:
+        cells = []
+        for run in runs:
+            found = [result for result in run.results if result.body == body]
+            if not found:
+                cells.append("-")
+                continue
+            summary = found[0].summary()
+            spread = "" if math.isnan(summary["return_se"]) else f" ± {summary['return_se']:.1f}"
+            cells.append(f"{summary['return_mean']:.1f}{spread}")
+        lines.append(f"| {body} | " + " | ".join(cells) + " |")
+    seeds = sorted({len(run.results[0].seeds) for run in runs})
+    lines.append("")
+    lines.append(
+        f"Mean ± standard error over {'/'.join(map(str, seeds))} seeds of each seed's mean return over "
+        f"{episodes} deterministic episodes."
+    )
+    return "\n".join(lines)
+
+
+def json_run(run: RunEvaluation, args: argparse.Namespace) -> dict[str, Any]:
+    """The ``--json`` object of one run."""
+    return {
+        "run_dir": str(run.run_dir),
+        "algo": run.policy.config.algo,
+        "env_steps": run.policy.info["env_steps"],
+        "episodes": args.episodes,
+        "seed": args.seed,
+        "seeds": list(run.results[0].seeds),
+        "bodies": json_report(run.results),
+    }
+
+
+def run(args: argparse.Namespace) -> str:
+    """Evaluate (and render) per the parsed command line; returns the text to print."""
+    if args.video and len(args.run_dirs) > 1:
+        raise ValueError("--video takes one RUN_DIR; evaluate the runs one at a time to record them")
+    runs = [evaluate_run(run_dir, args) for run_dir in args.run_dirs]
+    if args.markdown:
+        return markdown_table(runs, args.episodes)
     if args.json:
-        return json.dumps(
-            {
-                "run_dir": str(args.run_dir),
-                "env_steps": policy.info["env_steps"],
-                "episodes": args.episodes,
-                "seed": args.seed,
-                "seeds": list(results[0].seeds),
-                "bodies": json_report(results),
-            },
-            indent=2,
-        )
-    header = f"{args.run_dir} after {policy.info['env_steps']:,} environment steps ({policy.config.algo})"
-    return header + "\n" + format_table(results, args.episodes)
+        reports = [json_run(run, args) for run in runs]
+        return json.dumps(reports[0] if len(reports) == 1 else {"runs": reports}, indent=2)
+    return "\n\n".join(
+        f"{run.run_dir} after {run.policy.info['env_steps']:,} environment steps ({run.policy.config.algo})\n"
+        + format_table(run.results, args.episodes)
+        for run in runs
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,7 +37,7 @@ from swat_jax.cli import ERROR_STATUS
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
-from swat_jax.runs.experiment import CONFIG_FILE, Experiment
+from swat_jax.runs.experiment import CONFIG_FILE, Experiment, network_items
 from swat_jax.runs.metrics import MetricsWindow, MetricsWriter, evaluation_columns
 from swat_jax.td3.evaluation import Episodes
 from swat_jax.td3.iteration import TrainState
@@ -218,7 +218,7 @@ def _loop(
             "metrics_window": window.to_json(),
             **experiment.info(),
         }
-        checkpoints.save(state, state.learner.actor_params, info)
+        checkpoints.save(state, network_items(state.learner), info)
         saved = done
 
     stop = StopRequest()

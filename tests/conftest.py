@@ -77,3 +77,17 @@ def trained_run(tmp_path_factory, hopper_folder) -> Path:
     run_dir = tmp_path_factory.mktemp("runs") / "tiny"
     train(tiny_train_config(run_dir, hopper_folder), progress=False)
     return run_dir
+
+
+@pytest.fixture(scope="session")
+def trained_swat_run(tmp_path_factory, hopper_folder) -> Path:
+    """The run directory of a one-iteration SWAT run of hopper_3 (1 seed, no evaluation), whose traversal
+    tables have 3 rows: exactly hopper_3's 3 limbs, so larger bodies do not fit."""
+    from swat_jax.train import train
+
+    run_dir = tmp_path_factory.mktemp("runs") / "tiny_swat"
+    config = tiny_train_config(
+        run_dir, hopper_folder, algo="swat", steps=100, seeds=1, eval_interval=0, max_traversal_positions=3
+    )
+    train(config, progress=False)
+    return run_dir

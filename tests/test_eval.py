@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
 
 from swat_jax.eval import evaluate, main
+from swat_jax.runs.config import load_config
 from swat_jax.runs.experiment import load_policy
 
 
@@ -64,3 +67,22 @@ def test_errors_name_the_problem(trained_run, tmp_path, capsys):
     assert "nervenet_hopper: 21 observation features per limb, the policy was trained on 19" in (
         capsys.readouterr().err
     )
+
+
+def test_markdown_table_has_a_column_per_run_and_mean_and_standard_error_over_seeds(
+    trained_run, tmp_path, capsys
+):
+    twin = tmp_path / "twin"
+    shutil.copytree(trained_run, twin)
+    config = load_config(twin / "config.json")
+    (twin / "config.json").write_text(dataclasses.replace(config, run_dir=str(twin)).to_json())
+    assert main([str(trained_run), str(twin), "--episodes", "2", "--markdown"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[:2] == [f"| body | {trained_run.name} | twin |", "|---|---|---|"], "algorithms repeat"
+    [evaluation] = evaluate(load_policy(trained_run), ["hopper_3"], episodes=2)
+    summary = evaluation.summary()
+    cell = f"{summary['return_mean']:.1f} ± {summary['return_se']:.1f}"
+    assert lines[2] == f"| hopper_3 | {cell} | {cell} |"
+    assert "over 2 seeds" in lines[-1]
+    assert main([str(trained_run), str(twin), "--video", str(tmp_path / "v")]) == 2
+    assert "--video takes one RUN_DIR" in capsys.readouterr().err

@@ -60,6 +60,7 @@ def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
         feedforward=64,
         log_interval=2000,
         checkpoint_interval=16_000,
+        eval_interval=0,
     )
     train(config, progress=False)
     [learned] = evaluate(load_policy(config.directory()), ["hopper_3"], episodes=EPISODES)

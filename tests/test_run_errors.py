@@ -18,11 +18,11 @@ from swat_jax.runs.experiment import CONFIG_FILE, Experiment
 def test_an_unreadable_checkpoint_fits_on_a_screen_and_logs_the_detail(tmp_path):
     state = {"weights": np.arange(4096, dtype=np.float32).reshape(64, 64)}
     checkpoints = Checkpoints(tmp_path)
-    checkpoints.save(state, state, {"env_steps": 100})
+    checkpoints.save(state, {"actor": state}, {"env_steps": 100})
     for chunk in (tmp_path / "checkpoints" / "100" / "actor").rglob("d/*"):
         chunk.write_bytes(b"not a chunk")
     with pytest.raises(CheckpointError) as raised:
-        checkpoints.restore_actor(state)
+        checkpoints.restore_item("actor", state)
     checkpoints.close()
     message = str(raised.value)
     assert len(message) < 600 and "\n" not in message, message

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 from swat_jax.envs import MultiTaskEnv
 from swat_jax.networks import make_actor_critic, network_config
@@ -26,7 +27,10 @@ def tiny_learner() -> tuple[MultiTaskEnv, Learner]:
     return env, Learner(actor, critic, TD3Config(batch_size=8))
 
 
-def test_iteration_traces_once_collects_inserts_and_learns():
+@pytest.fixture(scope="module")
+def single_seed_run():
+    """Three iterations of the plain (seedless) iteration from seed 6, with its trace count: the initial
+    actor, the final state and the last metrics."""
     env, learner = tiny_learner()
     iteration = make_train_iteration(env, learner, CONFIG)
     traces = []
@@ -36,11 +40,18 @@ def test_iteration_traces_once_collects_inserts_and_learns():
         return iteration(state)
 
     step = jax.jit(counted)
-    state = init_train_state(env, learner, CONFIG, jax.random.PRNGKey(0))
+    state = jax.jit(lambda key: init_train_state(env, learner, CONFIG, key))(jax.random.PRNGKey(6))
     first_actor = state.learner.actor_params
-    for expected_size in (8, 16, 24):
+    sizes = []
+    for _ in range(3):  # past the random steps and the first updates, actor steps included
         state, metrics = step(state)
-        assert int(state.buffer.size) == expected_size
+        sizes.append(int(state.buffer.size))
+    return traces, sizes, first_actor, state, metrics
+
+
+def test_iteration_traces_once_collects_inserts_and_learns(single_seed_run):
+    traces, sizes, first_actor, state, metrics = single_seed_run
+    assert sizes == [8, 16, 24]
     assert len(traces) == 1, "the iteration must compile once"
     assert int(state.env_steps) == 3 * CONFIG.chunk * 2
     assert int(state.learner.updates) == 3 * CONFIG.updates
@@ -53,15 +64,14 @@ def test_iteration_traces_once_collects_inserts_and_learns():
     assert np.abs(stored[:, :3]).sum(axis=(1, 2)).min() > 0 and not stored[:, 3:].any(), "padding stays 0"
 
 
-def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k():
+def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k(single_seed_run):
+    *_, alone, alone_metrics = single_seed_run
     env, learner = tiny_learner()
     seeded = jax.jit(make_seeded_train_iteration(env, learner, CONFIG))
-    state = init_seeded_train_state(env, learner, CONFIG, seed_keys(5, 3))
-    single = jax.jit(make_train_iteration(env, learner, CONFIG))
-    alone = init_train_state(env, learner, CONFIG, jax.random.PRNGKey(6))
-    for _ in range(3):  # past the random steps and the first updates, actor steps included
+    init = jax.jit(lambda keys: init_seeded_train_state(env, learner, CONFIG, keys))
+    state = init(seed_keys(5, 3))
+    for _ in range(3):
         state, metrics = seeded(state)
-        alone, alone_metrics = single(alone)
     assert state.env_steps.shape == state.learner.updates.shape == (), "step counters are shared"
     assert metrics["critic_loss"].shape == (3, CONFIG.updates)
     per_seed = {

@@ -14,6 +14,7 @@ import time
 import typing
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from conftest import tiny_train_config, train_flags
@@ -335,5 +336,52 @@ def test_a_folder_environment_is_stored_absolute(hopper_folder, monkeypatch):
     monkeypatch.chdir(hopper_folder.parent)
     config = TrainConfig(env=hopper_folder.name)
     assert config.env == str(hopper_folder.resolve())
-    assert config.bodies() == (str(hopper_folder.resolve() / "hopper_3.xml"),)
+    assert config.training_bodies() == (str(hopper_folder.resolve() / "hopper_3.xml"),)
     assert TrainConfig(env="Hopper++").env == "Hopper++", "set names stay names"
+
+
+def test_init_from_starts_every_seed_from_the_chosen_seed_of_another_run(
+    trained_run, hopper_folder, tmp_path
+):
+    """Transfer (paper section 5.3): networks and targets from the source run, fresh optimizers and buffers."""
+    config = tiny_train_config(
+        tmp_path / "transfer",
+        hopper_folder,
+        bodies=("hopper_4",),
+        init_from=str(trained_run),
+        init_seed_index=1,
+    )
+    experiment = Experiment.build(config)
+    assert experiment.env.body_names == ("hopper_4",)
+    state = experiment.init_state()
+    source = final_state(trained_run)[0].learner
+    for name in ("actor_params", "critic_params", "target_actor_params", "target_critic_params"):
+        ours, theirs = getattr(state.learner, name), getattr(source, name)
+        for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(theirs), strict=True):
+            for seed in range(config.seeds):
+                np.testing.assert_array_equal(a[seed], b[1], err_msg=name)
+    assert int(state.buffer.size) == 0 and int(state.learner.updates) == 0
+    adam = state.learner.actor_optimizer[1][0]
+    assert not any(np.any(leaf) for leaf in jax.tree_util.tree_leaves(adam.mu)), "a fresh optimizer"
+
+
+def test_init_from_refuses_networks_that_do_not_fit_naming_both_runs(trained_run, hopper_folder, tmp_path):
+    def config(**overrides):
+        return tiny_train_config(
+            tmp_path / "transfer", hopper_folder, init_from=str(trained_run), **overrides
+        )
+
+    with pytest.raises(
+        ConfigError, match=rf"--init-from {trained_run} .*cannot start .*width 16 there, 32 here"
+    ):
+        Experiment.build(config(width=32))
+    with pytest.raises(ConfigError, match="19 observation features per limb there, 21 here"):
+        Experiment.build(config(bodies=("nervenet_hopper",)))
+    with pytest.raises(ConfigError, match=r"--init-seed-index 2, but it has 2 seeds \(0, 1\)"):
+        Experiment.build(config(init_seed_index=2))
+    with pytest.raises(ConfigError, match="no such run directory"):
+        Experiment.build(
+            tiny_train_config(tmp_path / "t", hopper_folder, init_from=str(tmp_path / "nowhere"))
+        )
+    with pytest.raises(ConfigError, match="--split test: hopper has no test bodies"):
+        TrainConfig(env="hopper", split="test")

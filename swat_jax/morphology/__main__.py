@@ -38,12 +38,6 @@ WRAP_WIDTH = 100
 ERROR_STATUS = 2
 
 
-def limb_type_name(morphology: Morphology, limb: int) -> str:
-    """The first key of the family's rule that typed ``limb`` (e.g. "thigh"), "none" for an untyped limb."""
-    index = morphology.limb_types[limb]
-    return morphology.family.limb_type_rules[index][0] if index >= 0 else "none"
-
-
 def limb_depths(parents: Sequence[int]) -> list[int]:
     """Depth of each limb in the tree, 0 for the torso (parents precede their children)."""
     depths: list[int] = []
@@ -89,7 +83,7 @@ def _tree_lines(morphology: Morphology) -> list[str]:
     lines = []
     for limb, name in enumerate(morphology.limb_names):
         label = f"{'  ' * depths[limb]}{name}"
-        head = f"  [{limb}] {label:<{width}}  type {limb_type_name(morphology, limb):<6}"
+        head = f"  [{limb}] {label:<{width}}  type {morphology.limb_type_name(limb):<6}"
         if morphology.parents[limb] < 0:
             lines.append(f"{head}  root: slides along x and z, hinge for pitch")
             continue
@@ -149,7 +143,7 @@ def show_json(morphology: Morphology, *, reference_inorder: bool = False) -> dic
         "limbs": list(morphology.limb_names),
         "parents": list(morphology.parents),
         "limb_types": list(morphology.limb_types),
-        "limb_type_names": [limb_type_name(morphology, limb) for limb in range(morphology.num_limbs)],
+        "limb_type_names": [morphology.limb_type_name(limb) for limb in range(morphology.num_limbs)],
         "joints": list(morphology.joint_names),
         "joint_ranges": [list(r) if r is not None else None for r in morphology.joint_ranges],
         "motors": list(morphology.limb_motors),

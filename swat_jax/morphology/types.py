@@ -111,6 +111,11 @@ class Morphology:
         """Joint ranges in degrees, float32 [num_limbs, 2]; zeros for the torso."""
         return np.array([r if r is not None else (0.0, 0.0) for r in self.joint_ranges], np.float32)
 
+    def limb_type_name(self, limb: int) -> str:
+        """The first key of the family's rule that typed ``limb`` (e.g. "thigh"), "none" for an untyped limb."""
+        index = self.limb_types[limb]
+        return self.family.limb_type_rules[index][0] if index >= 0 else "none"
+
     def children(self, limb: int) -> tuple[int, ...]:
         """Child limbs of ``limb`` in pre-order."""
         return tuple(i for i, p in enumerate(self.parents) if p == limb)

@@ -1,6 +1,6 @@
 """Orbax checkpoints of everything a run needs to continue, and of the actor alone for eval and export.
 
-A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with four items:
+A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with five items:
 
 - ``state``: the whole :class:`~swat_jax.td3.iteration.TrainState` (parameters, target parameters,
   optimizer states, replay buffers, environment states, RNG keys, counters) as a flat dict of its
@@ -8,6 +8,8 @@ A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with 
 - ``manifest``: the shape and dtype of every array of ``state``, checked against what the run expects
   before anything is read, so a mismatched checkpoint fails with the arrays that differ;
 - ``actor``: the actor parameters, so a policy loads without reading the replay buffers;
+- ``critic``: the critic parameters and both target networks, so another run can start from this
+  one's networks (``--init-from``) without reading the replay buffers;
 - ``info``: environment steps, iterations and seconds trained, and what a policy needs to be rebuilt
   (bodies, padded limb count, observation features).
 
@@ -78,14 +80,19 @@ class Checkpoints:
         """Environment steps of the newest complete checkpoint, or None."""
         return self.manager.latest_step()
 
-    def save(self, state: Any, actor_params: Any, info: dict[str, Any]) -> None:
-        """Write a checkpoint named by ``info["env_steps"]`` and wait until it is on disk."""
+    def save(self, state: Any, networks: dict[str, Any], info: dict[str, Any]) -> None:
+        """Write a checkpoint named by ``info["env_steps"]`` and wait until it is on disk.
+
+        Args:
+            networks: the ``actor`` and ``critic`` items (pytrees of arrays), read alone by
+                :meth:`restore_item`.
+        """
         self.manager.save(
             int(info["env_steps"]),
             args=ocp.args.Composite(
                 state=ocp.args.StandardSave(flatten(state)),
                 manifest=ocp.args.JsonSave(manifest(state)),
-                actor=ocp.args.StandardSave(actor_params),
+                **{name: ocp.args.StandardSave(tree) for name, tree in networks.items()},
                 info=ocp.args.JsonSave(info),
             ),
             force=True,
@@ -111,10 +118,10 @@ class Checkpoints:
         """The newest checkpoint's info."""
         return dict(self._read(self._latest(), info=ocp.args.JsonRestore())["info"])
 
-    def restore_actor(self, template: Any) -> Any:
-        """The newest checkpoint's actor parameters, shaped like ``template``."""
+    def restore_item(self, name: str, template: Any) -> Any:
+        """The newest checkpoint's ``name`` item (``actor`` or ``critic``), shaped like ``template``."""
         abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), template)
-        return self._read(self._latest(), actor=ocp.args.StandardRestore(abstract))["actor"]
+        return self._read(self._latest(), **{name: ocp.args.StandardRestore(abstract)})[name]
 
     def close(self) -> None:
         self.manager.close()

@@ -26,6 +26,7 @@ from swat_jax.td3.learner import TD3Config
 
 Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
 Preset = Literal["paper", "fast"]
+Split = Literal["train", "test", "all"]
 
 
 class ConfigError(ValueError):
@@ -47,6 +48,14 @@ class TrainConfig:
 
     env: str = "animal_walkers"
     """Environment set (hopper, walker, cheetah, humanoid, wh, whh, cwh, cwhh, animal_walkers) or a folder of MJCF files; trains on its train split."""
+    split: Split = "train"
+    """Bodies of --env to train on: its train bodies, its held-out test bodies (fine-tuning on unseen bodies, paper section 5.3) or all."""
+    bodies: tuple[str, ...] = ()
+    """Train on these bodies (benchmark names or MJCF paths) instead of a split of --env."""
+    init_from: str = ""
+    """Start from the actor and critic (and their targets) of this run directory's newest checkpoint; optimizers and replay buffers start fresh (transfer, paper section 5.3)."""
+    init_seed_index: int = 0
+    """With --init-from: which seed of that run (an index into its seeds) every seed of this run starts from."""
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = "paper"
@@ -100,6 +109,16 @@ class TrainConfig:
         if SETS.get(environment_set.name) is not environment_set:
             # A folder of MJCF files: stored absolute so the run resumes and evaluates from anywhere.
             object.__setattr__(self, "env", str(Path(self.env).expanduser().resolve()))
+        # Paths stored absolute for the same reason; benchmark names stay names.
+        object.__setattr__(self, "bodies", tuple(_absolute_if_path(body) for body in self.bodies))
+        if self.init_from:
+            object.__setattr__(self, "init_from", str(Path(self.init_from).expanduser().resolve()))
+        if not self.bodies and not environment_set.split(self.split):
+            raise ConfigError(
+                f"--split {self.split}: {self.env} has no {self.split} bodies; use another --split or --bodies"
+            )
+        if self.init_seed_index < 0:
+            raise ConfigError(f"--init-seed-index must be 0 or more, got {self.init_seed_index}")
         if self.algo not in NAMED_VARIANTS:
             raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
         if self.preset not in PRESET_NAMES:
@@ -132,9 +151,10 @@ class TrainConfig:
         sizes = {name: getattr(self, name) for name in NETWORK_SIZES if getattr(self, name) is not None}
         return network_config(self.algo, **sizes)
 
-    def bodies(self) -> tuple[str, ...]:
-        """The train bodies of ``env`` (names, or MJCF paths for a folder)."""
-        return get_set(self.env).split("train")
+    def training_bodies(self) -> tuple[str, ...]:
+        """The bodies this run trains on: ``bodies`` if given, else ``split`` of ``env`` (names, or MJCF
+        paths for a folder)."""
+        return self.bodies or get_set(self.env).split(self.split)
 
     def directory(self) -> Path:
         """The run directory."""
@@ -171,6 +191,12 @@ PRESETS: dict[str, TrainConfig] = {
     ),
 }
 """The defaults each preset gives every flag."""
+
+
+def _absolute_if_path(body: str) -> str:
+    """An MJCF path made absolute; a benchmark body name unchanged."""
+    path = Path(body).expanduser()
+    return str(path.resolve()) if path.suffix.lower() == ".xml" or path.exists() else body
 
 
 def load_config(path: str | Path) -> TrainConfig:

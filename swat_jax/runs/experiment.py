@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch
@@ -28,7 +29,7 @@ from swat_jax.td3.iteration import (
     make_seeded_train_iteration,
     seed_keys,
 )
-from swat_jax.td3.learner import Learner
+from swat_jax.td3.learner import Learner, LearnerState
 
 CONFIG_FILE = "config.json"
 
@@ -45,7 +46,7 @@ class Experiment:
     def build(cls, config: TrainConfig) -> Experiment:
         """Load the bodies and build the networks; ConfigError if the network cannot take the bodies."""
         env = MultiTaskEnv(
-            config.bodies(),
+            config.training_bodies(),
             config.copies,
             torso_relative_x=config.torso_relative_x,
             reference_inorder=config.reference_inorder,
@@ -57,6 +58,8 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
+        if config.init_from:
+            _check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features)
         return cls(config, env, Learner(actor, critic, config.td3))
 
@@ -64,9 +67,30 @@ class Experiment:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
         a leading seed axis (:data:`~swat_jax.td3.iteration.SEED_AXES`).
 
+        With ``config.init_from``, every seed's actor, critic and target networks are those of the chosen
+        seed of that run (optimizers and replay buffers stay fresh).
+
         Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies).
         """
-        return _committed(jax.jit(self._initial_state)(self._seed_keys()))
+        state = jax.jit(self._initial_state)(self._seed_keys())
+        if self.config.init_from:
+            state = state.replace(learner=self._transferred(state.learner))
+        return _committed(state)
+
+    def _transferred(self, learner: LearnerState) -> LearnerState:
+        """``learner`` with the networks of seed ``init_seed_index`` of run ``init_from`` in every seed."""
+        one_seed = network_items(jax.eval_shape(self.learner.init, jax.random.PRNGKey(0)))
+        networks = _restore_networks(Path(self.config.init_from), one_seed)
+        index, seeds = self.config.init_seed_index, self.config.seeds
+        chosen = jax.tree_util.tree_map(
+            lambda leaf: jnp.broadcast_to(leaf[index], (seeds, *leaf.shape[1:])), networks
+        )
+        return learner.replace(
+            actor_params=chosen["actor"],
+            critic_params=chosen["critic"]["critic_params"],
+            target_actor_params=chosen["critic"]["target_actor_params"],
+            target_critic_params=chosen["critic"]["target_critic_params"],
+        )
 
     def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, dict[str, Any]]:
         """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one,
@@ -109,6 +133,90 @@ class Experiment:
             "max_limbs": self.env.max_limbs,
             "observation_features": self.env.observation_features,
         }
+
+
+def network_items(learner: LearnerState) -> dict[str, Any]:
+    """The networks of a learner state as the checkpoint items ``actor`` (the actor's parameters) and
+    ``critic`` (the critic's and both targets'), every seed."""
+    return {
+        "actor": learner.actor_params,
+        "critic": {
+            "critic_params": learner.critic_params,
+            "target_actor_params": learner.target_actor_params,
+            "target_critic_params": learner.target_critic_params,
+        },
+    }
+
+
+def _restore_networks(run_dir: Path, one_seed: dict[str, Any]) -> dict[str, Any]:
+    """The items of ``one_seed`` (single-seed shapes, see :func:`network_items`) from the newest checkpoint
+    of ``run_dir``, with the run's seed axis in front (CheckpointError if there is none)."""
+    checkpoints = Checkpoints(run_dir)
+    try:
+        seeds = len(_newest_info(run_dir, checkpoints)["seeds"])
+        return {
+            name: checkpoints.restore_item(
+                name,
+                jax.tree_util.tree_map(
+                    lambda leaf: jax.ShapeDtypeStruct((seeds, *leaf.shape), leaf.dtype), template
+                ),
+            )
+            for name, template in one_seed.items()
+        }
+    finally:
+        checkpoints.close()
+
+
+def _newest_info(run_dir: Path, checkpoints: Checkpoints) -> dict[str, Any]:
+    """The info of the newest checkpoint (CheckpointError if there is none or it predates the seed axis)."""
+    if checkpoints.latest_step() is None:
+        raise CheckpointError(
+            f"{run_dir} has no checkpoint yet, so there is no trained policy to load: training writes "
+            "one every --checkpoint-interval steps, at its end and when it is stopped"
+        )
+    info = checkpoints.info()
+    if "seeds" not in info:
+        raise CheckpointError(
+            f"{checkpoints.directory} was written before runs had a seed axis (swat_jax 0.1.0 before "
+            "multi-seed training); train the run again"
+        )
+    return info
+
+
+def _check_transfer(config: TrainConfig, observation_features: int) -> None:
+    """ConfigError, naming both runs, if run ``config.init_from``'s networks cannot start this run."""
+    source_dir = Path(config.init_from)
+    if not source_dir.is_dir():
+        raise ConfigError(f"--init-from {source_dir}: no such run directory")
+    source = load_config(source_dir / CONFIG_FILE)
+    checkpoints = Checkpoints(source_dir)
+    try:
+        info = _newest_info(source_dir, checkpoints)
+    finally:
+        checkpoints.close()
+    theirs, ours = source.network(), config.network()
+    problems = [
+        f"{field.name} {getattr(theirs, field.name)!r} there, {getattr(ours, field.name)!r} here"
+        for field in dataclasses.fields(theirs)
+        if getattr(theirs, field.name) != getattr(ours, field.name)
+    ]
+    if int(info["observation_features"]) != observation_features:
+        problems.append(
+            f"{info['observation_features']} observation features per limb there, {observation_features} "
+            "here (another family vocabulary)"
+        )
+    if config.init_seed_index >= len(info["seeds"]):
+        problems.append(
+            f"--init-seed-index {config.init_seed_index}, but it has {len(info['seeds'])} seeds "
+            f"({', '.join(map(str, info['seeds']))})"
+        )
+    if problems:
+        raise ConfigError(
+            f"--init-from {source_dir} ({source.algo} on {Path(source.env).name}) cannot start "
+            f"{config.directory()} ({config.algo} on {Path(config.env).name}): "
+            + "; ".join(problems)
+            + ". Give this run the same --algo and network sizes as that one"
+        )
 
 
 def _committed(state: TrainState) -> TrainState:
@@ -159,23 +267,9 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
     config = load_config(run_dir / CONFIG_FILE)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
-        if checkpoints.latest_step() is None:
-            raise CheckpointError(
-                f"{run_dir} has no checkpoint yet, so there is no trained policy to load: training writes "
-                "one every --checkpoint-interval steps, at its end and when it is stopped"
-            )
-        info = checkpoints.info()
-        if "seeds" not in info:
-            raise CheckpointError(
-                f"{checkpoints.directory} was written before runs had a seed axis (swat_jax 0.1.0 before "
-                "multi-seed training); train the run again"
-            )
-        actor, _ = make_actor_critic(config.network(), int(info["observation_features"]))
-        one_seed = jax.eval_shape(actor.init, jax.random.PRNGKey(0))
-        template = jax.tree_util.tree_map(
-            lambda leaf: jax.ShapeDtypeStruct((len(info["seeds"]), *leaf.shape), leaf.dtype), one_seed
-        )
-        params = checkpoints.restore_actor(template)
+        info = _newest_info(run_dir, checkpoints)
     finally:
         checkpoints.close()
-    return TrainedPolicy(config, actor, params, info)
+    actor, _ = make_actor_critic(config.network(), int(info["observation_features"]))
+    one_seed = {"actor": jax.eval_shape(actor.init, jax.random.PRNGKey(0))}
+    return TrainedPolicy(config, actor, _restore_networks(run_dir, one_seed)["actor"], info)

@@ -80,6 +80,13 @@ def read_metrics(run_dir: Path) -> list[dict[str, float]]:
         return [{k: float(v) if v else math.nan for k, v in row.items()} for row in csv.DictReader(file)]
 
 
+def standard_error(values: np.ndarray) -> float:
+    """Standard error of the mean of ``values`` [n] (sample standard deviation / sqrt(n)); NaN for n < 2."""
+    if len(values) < 2:
+        return math.nan
+    return float(np.std(values, ddof=1) / math.sqrt(len(values)))
+
+
 class MetricsWindow:
     """Per-seed sums since the last metrics row: each iteration's mean losses and the episodes each body
     finished (sums of returns and lengths, and their count).
