@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from swat_jax.cli import ERROR_STATUS, positive_int
+from swat_jax.cli import positive_int, run_command
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import MorphologyError, get_set, load
 from swat_jax.networks import StructureMismatch, check_structures
@@ -335,13 +335,9 @@ def run(args: argparse.Namespace) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
-    args = build_parser().parse_args(argv)
-    try:
-        print(run(args))
-    except (ConfigError, CheckpointError, MorphologyError, ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return ERROR_STATUS
-    return 0
+    return run_command(
+        build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
+    )
 
 
 if __name__ == "__main__":

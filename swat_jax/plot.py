@@ -30,7 +30,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from sklearn.manifold import TSNE
 
-from swat_jax.cli import ERROR_STATUS
+from swat_jax.cli import run_command
 from swat_jax.envs.body import BodyEnv
 from swat_jax.morphology import Morphology, MorphologyError, StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import StructureMismatch, check_structures
@@ -518,13 +518,9 @@ def run(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
-    args = build_parser().parse_args(argv)
-    try:
-        run(args)
-    except (ConfigError, CheckpointError, MorphologyError, ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return ERROR_STATUS
-    return 0
+    return run_command(
+        build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
+    )
 
 
 if __name__ == "__main__":
