@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+from collections.abc import Sequence
 
 import jax
 from machine import cpu_model
@@ -33,9 +34,12 @@ class Measurement:
     transitions_per_second: float
 
 
-def measure(label: str, config: TrainConfig, iterations: int) -> Measurement:
-    """Compile, warm up, and time ``iterations`` training iterations of ``config``."""
-    experiment = Experiment.build(config)
+def measure(
+    label: str, config: TrainConfig, iterations: int, devices: Sequence[jax.Device] | None = None
+) -> Measurement:
+    """Compile, warm up, and time ``iterations`` training iterations of ``config`` (over ``devices``, default
+    every device)."""
+    experiment = Experiment.build(config, devices)
     state = experiment.init_state()
     start = time.perf_counter()
     iteration = experiment.iteration().lower(state).compile()

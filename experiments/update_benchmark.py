@@ -6,7 +6,9 @@ update called once per task with a one-task slice [1, B] (one compiled function 
 all slices have the same padded shape). Each timed call runs ``--updates`` updates in a ``lax.scan``
 inside one jit, so dispatch does not dominate. Random transitions (fixed seed, observations zeroed on
 padded limbs) stand in for replay samples. Compile time is reported separately; the throughput is the
-median over repeats after one warm-up call.
+median over repeats after one warm-up call. The vmapped update's achieved FLOP/s (XLA's cost analysis of
+the compiled program over its median time) is compared with the matmul ceiling: a 2048 x 2048 float32
+matmul timed in the same process.
 
     python experiments/update_benchmark.py [--set animal_walkers] [--network swat] [--batch 100]
         [--updates 10] [--repeats 3]
@@ -84,7 +86,22 @@ def compile_seconds(function: UpdateLoop, *args) -> tuple[Callable[..., LearnerS
     return compiled, traced - start, time.perf_counter() - traced
 
 
-def median_seconds(run: Callable[[], LearnerState], repeats: int) -> float:
+def compiled_flops(compiled: Any) -> float:
+    """Floating-point operations of one call of a compiled program, by XLA's cost analysis."""
+    analysis = compiled.cost_analysis()
+    if isinstance(analysis, list | tuple):
+        analysis = analysis[0]
+    return float(analysis["flops"])
+
+
+def matmul_ceiling(size: int = 2048, repeats: int = 5) -> float:
+    """FLOP/s of a ``size`` x ``size`` float32 matmul on the default device (median of ``repeats``)."""
+    a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
+    product = jax.jit(lambda x: x @ x)
+    return 2 * size**3 / median_seconds(lambda: product(a), repeats)
+
+
+def median_seconds(run: Callable[[], Any], repeats: int) -> float:
     """Median wall time of ``run()`` after one warm-up call."""
     jax.block_until_ready(run())
     times = []
@@ -130,7 +147,8 @@ def vmapped_throughput(
 
     Returns:
         ``tasks``, ``actor_parameters``, ``critic_parameters``, ``trace_s``, ``compile_s``,
-        ``transitions_per_second`` (tasks x batch x updates / s) and ``updates_per_second``.
+        ``transitions_per_second`` (tasks x batch x updates / s), ``updates_per_second``,
+        ``gflop_per_update`` (XLA's count) and ``gflop_per_second`` achieved.
     """
     problem = update_problem(set_name, network, batch, updates)
     compiled, trace_s, compile_s = compile_seconds(problem.loop, *problem[1:])
@@ -144,6 +162,8 @@ def vmapped_throughput(
         "compile_s": compile_s,
         "transitions_per_second": tasks * batch * updates / seconds,
         "updates_per_second": updates / seconds,
+        "gflop_per_update": compiled_flops(compiled) / updates / 1e9,
+        "gflop_per_second": compiled_flops(compiled) / seconds / 1e9,
     }
 
 
@@ -170,6 +190,8 @@ def benchmark(
 
     return {
         "tasks": tasks,
+        "gflop_per_update": vmapped["gflop_per_update"],
+        "gflop_per_second": vmapped["gflop_per_second"],
         "vmapped compile": vmapped["trace_s"] + vmapped["compile_s"],
         "one-task compile": trace_s + compile_s,
         "vmapped": vmapped["transitions_per_second"],
@@ -193,15 +215,19 @@ def main() -> None:
         f"{args.updates} updates per call, {args.repeats} repeats"
     )
     result = benchmark(args.set, network_config(args.network), args.batch, args.updates, args.repeats)
+    ceiling = matmul_ceiling() / 1e9
     print(
         "| set | network | tasks x batch | compile vmapped / one-task (s) | vmapped transitions/s "
-        "| one-task-at-a-time transitions/s | vmapped / one-task |"
+        "| one-task-at-a-time transitions/s | vmapped / one-task | GFLOP per update (XLA) "
+        "| achieved GFLOP/s | matmul ceiling GFLOP/s | achieved / ceiling |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     print(
         f"| {args.set} | {args.network} | {result['tasks']}x{args.batch} "
         f"| {result['vmapped compile']:.1f} / {result['one-task compile']:.1f} "
-        f"| {result['vmapped']:,.0f} | {result['one-task']:,.0f} | {result['vmapped'] / result['one-task']:.2f} |",
+        f"| {result['vmapped']:,.0f} | {result['one-task']:,.0f} | {result['vmapped'] / result['one-task']:.2f} "
+        f"| {result['gflop_per_update']:.2f} | {result['gflop_per_second']:.1f} | {ceiling:.0f} "
+        f"| {result['gflop_per_second'] / ceiling:.1%} |",
         flush=True,
     )
 

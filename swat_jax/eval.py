@@ -25,8 +25,8 @@ import numpy as np
 
 from swat_jax.cli import positive_int, run_command
 from swat_jax.envs.multi_task import MultiTaskEnv
-from swat_jax.morphology import MorphologyError, get_set, load
-from swat_jax.networks import StructureMismatch, check_structures
+from swat_jax.morphology import MorphologyError, get_set
+from swat_jax.networks import StructureMismatch, task_set
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
 from swat_jax.runs.experiment import TrainedPolicy, load_policy
@@ -93,12 +93,14 @@ def evaluate(
         ValueError: a body does not fit the policy (observation width, traversal positions), or a seed
             index is out of range.
     """
-    env = MultiTaskEnv(
-        [load(body) for body in bodies],
-        episodes,
-        torso_relative_x=policy.config.torso_relative_x,
-        reference_inorder=policy.config.reference_inorder,
-    )
+    try:
+        tasks = task_set(bodies, policy.config.network(), reference_inorder=policy.config.reference_inorder)
+    except StructureMismatch as error:
+        raise ValueError(
+            f"{error}: the policy of {policy.config.directory()} cannot take it "
+            f"({policy.config.structure_fix(error)})"
+        ) from error
+    env = MultiTaskEnv(tasks.bodies, episodes, torso_relative_x=policy.config.torso_relative_x)
     features = int(policy.info["observation_features"])
     if env.observation_features != features:
         raise ValueError(
@@ -106,18 +108,11 @@ def evaluate(
             f"policy was trained on {features} (another family vocabulary); evaluate bodies of the run's "
             "families"
         )
-    try:
-        check_structures(policy.config.network(), env.structure, env.body_names)
-    except StructureMismatch as error:
-        raise ValueError(
-            f"{error}: the policy of {policy.config.directory()} cannot take it "
-            f"({policy.config.structure_fix(error)})"
-        ) from error
     indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
     params = jax.tree_util.tree_map(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )
-    evaluation = jax.jit(make_evaluation(env, policy.actor, record=record))
+    evaluation = jax.jit(make_evaluation(env, tasks.structure, policy.actor, record=record))
     result = jax.device_get(evaluation(params, jax.random.PRNGKey(seed)))
     seeds = tuple(policy.seeds[index] for index in indices)
     evaluations = []

@@ -182,9 +182,9 @@ def export_policy(
         ExportError: the output name, ``max_limbs`` or ``platforms`` does not fit.
     """
     # The training code is imported here only, so that `load` runs without it.
-    from swat_jax.morphology import get_set, pad_structures
+    from swat_jax.morphology import get_set
     from swat_jax.morphology import load as load_body
-    from swat_jax.networks import check_structures
+    from swat_jax.networks import task_set
     from swat_jax.runs.config import ConfigError
     from swat_jax.runs.experiment import load_policy
 
@@ -213,9 +213,10 @@ def export_policy(
             f"{config.algo} has learned, so larger bodies could not be encoded; use at most "
             f"{network.max_traversal_positions}"
         )
-    structures = pad_structures(bodies, max_limbs, reference_inorder=config.reference_inorder)
     try:
-        check_structures(network, structures)
+        structures = task_set(
+            bodies, network, max_limbs=max_limbs, reference_inorder=config.reference_inorder
+        ).structure
     except ValueError as error:
         raise ExportError(f"{config.algo} cannot take the bodies of {config.env}: {error}") from error
     program = serialize_actor(

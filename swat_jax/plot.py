@@ -32,8 +32,8 @@ from sklearn.manifold import TSNE
 
 from swat_jax.cli import run_command
 from swat_jax.envs.body import BodyEnv
-from swat_jax.morphology import Morphology, MorphologyError, StructureBatch, get_set, load, pad_structures
-from swat_jax.networks import StructureMismatch, check_structures
+from swat_jax.morphology import Morphology, MorphologyError, StructureBatch, get_set, load
+from swat_jax.networks import StructureMismatch, task_set
 from swat_jax.networks.transformer import RelationalEmbedding, TraversalEmbedding
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError, TrainConfig, load_config
@@ -266,15 +266,15 @@ def embedding_params(policy: TrainedPolicy, seed_index: int, module: str) -> dic
 
 
 def checked_structure(policy: TrainedPolicy, run_dir: Path, bodies: Sequence[Morphology]) -> StructureBatch:
-    """The bodies' padded structures (StructureBatch); ValueError if one is larger than the positional tables."""
-    structure = pad_structures(bodies, reference_inorder=policy.config.reference_inorder)
+    """The bodies' padded structures (their task set's); ValueError if one is larger than the positional tables."""
     try:
-        check_structures(policy.config.network(), structure, [body.name for body in bodies])
+        return task_set(
+            bodies, policy.config.network(), reference_inorder=policy.config.reference_inorder
+        ).structure
     except StructureMismatch as error:
         raise ValueError(
             f"{error}: the network of {run_dir} has no embedding for it ({policy.config.structure_fix(error)})"
         ) from error
-    return structure
 
 
 def positional_embeddings(policy: TrainedPolicy, seed_index: int, structure: StructureBatch) -> np.ndarray:
@@ -368,17 +368,17 @@ def plot_embeddings(run_dir: str | Path, output: str | Path, *, seed_index: int 
     return figure
 
 
-def relation_bias(policy: TrainedPolicy, seed_index: int, body: Morphology) -> np.ndarray:
-    """[heads, n, n] the bias g(R) that each head adds to the attention logits between the body's limbs."""
-    structure = pad_structures([body])
+def relation_bias(policy: TrainedPolicy, seed_index: int, structure: StructureBatch) -> np.ndarray:
+    """[heads, n, n] the bias g(R) that each head adds to the attention logits between the limbs of the one
+    body of ``structure`` (unpadded)."""
     module = RelationalEmbedding(policy.config.network())
     variables = embedding_params(policy, seed_index, "relational_embedding")
     return np.asarray(module.apply(variables, structure.relations[0]))
 
 
-def check_body_fits(policy: TrainedPolicy, run_dir: Path, body: Morphology) -> None:
-    """ValueError if the policy cannot take ``body``: another observation width (family vocabulary), or
-    more limbs than its positional tables."""
+def checked_body(policy: TrainedPolicy, run_dir: Path, body: Morphology) -> StructureBatch:
+    """The structure of ``body`` alone; ValueError if the policy cannot take it: another observation width
+    (family vocabulary), or more limbs than its positional tables."""
     features = BodyEnv(body, torso_relative_x=policy.config.torso_relative_x).observation_features
     expected = int(policy.info["observation_features"])
     if features != expected:
@@ -386,7 +386,7 @@ def check_body_fits(policy: TrainedPolicy, run_dir: Path, body: Morphology) -> N
             f"{body.name}: {features} observation features per limb, the policy of {run_dir} was trained on "
             f"{expected} (another family vocabulary); plot a body of the run's families"
         )
-    checked_structure(policy, run_dir, [body])
+    return checked_structure(policy, run_dir, [body])
 
 
 def relations_figure(bias: np.ndarray, limb_names: Sequence[str], title: str) -> Figure:
@@ -423,8 +423,7 @@ def plot_relations(
     policy = load_policy(run_dir)
     require_embedding(policy.config, run_dir, "relational_embedding")
     morphology = load(body)
-    check_body_fits(policy, run_dir, morphology)
-    bias = relation_bias(policy, seed_index, morphology)
+    bias = relation_bias(policy, seed_index, checked_body(policy, run_dir, morphology))
     title = (
         f"{policy.config.algo}, seed {policy.seeds[seed_index]}: relational bias g(R) on {morphology.name}"
     )

@@ -42,6 +42,7 @@ from swat_jax.runs.metrics import MetricsWindow, MetricsWriter, evaluation_colum
 from swat_jax.td3.evaluation import Episodes
 from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
+from swat_jax.td3.sharding import fetch
 
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 """Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
@@ -63,6 +64,23 @@ class TrainCommand(TrainConfig):
     """Delete an existing run directory of the same name and start over."""
     progress: bool = True
     """Show a progress bar (steps, steps/s, mean return)."""
+    devices: int = 0
+    """Train on the first N devices (0: every device): seeds, then bodies, are split over a device mesh."""
+    distributed: bool = False
+    """Several hosts: call jax.distributed.initialize() first (Slurm, Open MPI and TPU pods are detected; elsewhere give the three flags below)."""
+    coordinator_address: str = ""
+    """Several hosts: HOST:PORT of process 0's coordinator (implies --distributed)."""
+    num_processes: int = 0
+    """Several hosts: how many processes take part (one per host), with --coordinator-address."""
+    process_id: int = 0
+    """Several hosts: this process's index, 0 .. num_processes - 1, with --coordinator-address."""
+
+    def start_distributed(self) -> None:
+        """Join the other hosts' processes (``jax.distributed.initialize``) when asked to; before any JAX work."""
+        if self.coordinator_address:
+            jax.distributed.initialize(self.coordinator_address, self.num_processes, self.process_id)
+        elif self.distributed:
+            jax.distributed.initialize()
 
     def config(self) -> TrainConfig:
         return TrainConfig(
@@ -108,6 +126,17 @@ class RunResult:
     interrupted: bool
 
 
+def _chosen_devices(count: int) -> list[jax.Device]:
+    """The first ``count`` devices (every device for 0); ConfigError if there are fewer."""
+    devices = jax.devices()
+    if count < 0 or count > len(devices):
+        raise ConfigError(
+            f"--devices {count}: this machine has {len(devices)} {devices[0].platform} device"
+            f"{'s' * (len(devices) > 1)}; give 1 to {len(devices)}, or 0 for all"
+        )
+    return devices[: count or len(devices)]
+
+
 def prepare_run_dir(config: TrainConfig, *, resume: bool, overwrite: bool) -> Path:
     """Create (or reuse, when resuming) the run directory and write ``config.json``."""
     run_dir = config.directory()
@@ -132,6 +161,7 @@ def train(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
+    devices: int = 0,
     after_iteration: Callable[[int], None] | None = None,
 ) -> RunResult:
     """Run (or continue) training until ``config.steps`` or a stop signal; returns where it ended.
@@ -141,18 +171,20 @@ def train(
         resume: continue from the newest checkpoint in ``config.directory()``.
         overwrite: replace an existing run directory (otherwise RunExistsError).
         progress: show a progress bar.
+        devices: train on the first ``devices`` devices (0: all of them).
         after_iteration: called with the iteration count after each iteration (tests use it to interrupt).
 
     Raises:
         ConfigError, CheckpointError, MemoryError: with a message that says what to change.
     """
-    experiment = Experiment.build(config)
+    experiment = Experiment.build(config, _chosen_devices(devices))
     env = experiment.env
     print(
         f"run {config.directory()}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
         f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
         f"{env.max_limbs} limbs max, seeds {', '.join(map(str, config.seed_values()))} in one program"
     )
+    print(experiment.placement.describe())
     print(
         check_buffer_fits(
             env.num_bodies,
@@ -174,11 +206,16 @@ def train(
             if resume:
                 print(f"no checkpoint in {checkpoints.directory} yet: starting the run from its saved config")
             state, info = experiment.init_state(), {"env_steps": 0, "iterations": 0, "seconds": 0.0}
-        metrics = MetricsWriter(run_dir, resumed_at=info["env_steps"] if resume else None)
+        # Several hosts: every process trains and checkpoints its shards; process 0 writes the metrics.
+        primary = jax.process_index() == 0
+        metrics = (
+            MetricsWriter(run_dir, resumed_at=info["env_steps"] if resume else None) if primary else None
+        )
         try:
-            return _loop(experiment, state, info, checkpoints, metrics, progress, after_iteration)
+            return _loop(experiment, state, info, checkpoints, metrics, progress and primary, after_iteration)
         finally:
-            metrics.close()
+            if metrics is not None:
+                metrics.close()
     finally:
         checkpoints.close()
 
@@ -188,7 +225,7 @@ def _loop(
     state: TrainState,
     info: dict[str, Any],
     checkpoints: Checkpoints,
-    metrics: MetricsWriter,
+    metrics: MetricsWriter | None,
     progress: bool,
     after_iteration: Callable[[int], None] | None,
 ) -> RunResult:
@@ -235,7 +272,7 @@ def _loop(
         while done < total and not stop.requested:
             state, step_metrics = iteration(state)
             # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
-            window.add(jax.device_get(step_metrics))
+            window.add(fetch(step_metrics))
             done, timed = done + 1, timed + 1
             bar.update(per_iteration)
             if done % log_every == 0 or done == total:
@@ -248,7 +285,7 @@ def _loop(
                         config.eval_interval, done, window.iterations, per_iteration
                     )
                     rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
-                for row in rows:
+                for row in rows if metrics is not None else ():
                     metrics.write(row)
                 bar.set_postfix(_progress_summary(rows))
                 window.clear()
@@ -297,7 +334,7 @@ def _with_evaluation(
         nan = np.full((len(rows), len(body_names), 1), np.nan)
         columns = evaluation_columns(nan, nan, body_names)
     else:
-        episodes = jax.device_get(evaluation(state.learner.actor_params, jax.random.PRNGKey(0)))
+        episodes = fetch(evaluation(state.learner.actor_params, jax.random.PRNGKey(0)))
         columns = evaluation_columns(episodes.returns, episodes.lengths, body_names)
     return [row | extra for row, extra in zip(rows, columns, strict=True)]
 
@@ -363,15 +400,24 @@ def _interrupted_before_training(command: TrainCommand) -> str:
     return "interrupted before training started; nothing was written"
 
 
+def parse_command(argv: list[str]) -> tuple[TrainCommand, TrainCommand]:
+    """The command ``python -m swat_jax.train ARGV`` asks for, and its preset's defaults."""
+    defaults = _preset_defaults(argv)
+    return tyro.cli(TrainCommand, args=argv, default=defaults, prog="python -m swat_jax.train"), defaults
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and train; returns the exit status (2 for a bad option or run directory)."""
-    argv = sys.argv[1:] if argv is None else argv
-    defaults = _preset_defaults(argv)
-    command = tyro.cli(TrainCommand, args=argv, default=defaults, prog="python -m swat_jax.train")
+    command, defaults = parse_command(sys.argv[1:] if argv is None else argv)
     try:
+        command.start_distributed()
         config = resolve(command, defaults)
         result = train(
-            config, resume=bool(command.resume), overwrite=command.overwrite, progress=command.progress
+            config,
+            resume=bool(command.resume),
+            overwrite=command.overwrite,
+            progress=command.progress,
+            devices=command.devices,
         )
     except (ConfigError, CheckpointError, MemoryError) as error:
         print(f"error: {error}", file=sys.stderr)

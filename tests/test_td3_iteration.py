@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swat_jax.envs import MultiTaskEnv
-from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.networks import make_actor_critic, network_config, task_set
 from swat_jax.td3.iteration import (
     IterationConfig,
     init_seeded_train_state,
@@ -21,9 +21,13 @@ from swat_jax.td3.learner import Learner, TD3Config
 CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64)
 
 
+NETWORK = network_config("amorpheus", width=16, layers=1, feedforward=32)
+STRUCTURE = task_set(["hopper_3"], NETWORK, max_limbs=4).structure
+
+
 def tiny_learner() -> tuple[MultiTaskEnv, Learner]:
     env = MultiTaskEnv(["hopper_3"], copies=2, max_limbs=4)
-    actor, critic = make_actor_critic(network_config("amorpheus", width=16, layers=1, feedforward=32), 19)
+    actor, critic = make_actor_critic(NETWORK, 19)
     return env, Learner(actor, critic, TD3Config(batch_size=8))
 
 
@@ -32,7 +36,7 @@ def single_seed_run():
     """Three iterations of the plain (seedless) iteration from seed 6, with its trace count: the initial
     actor, the final state and the last metrics."""
     env, learner = tiny_learner()
-    iteration = make_train_iteration(env, learner, CONFIG)
+    iteration = make_train_iteration(env, STRUCTURE, learner, CONFIG)
     traces = []
 
     def counted(state):
@@ -67,7 +71,7 @@ def test_iteration_traces_once_collects_inserts_and_learns(single_seed_run):
 def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k(single_seed_run):
     *_, alone, alone_metrics = single_seed_run
     env, learner = tiny_learner()
-    seeded = jax.jit(make_seeded_train_iteration(env, learner, CONFIG))
+    seeded = jax.jit(make_seeded_train_iteration(env, STRUCTURE, learner, CONFIG))
     init = jax.jit(lambda keys: init_seeded_train_state(env, learner, CONFIG, keys))
     state = init(seed_keys(5, 3))
     for _ in range(3):

@@ -20,6 +20,7 @@ import pytest
 from conftest import tiny_train_config, train_flags
 from tensorboardX.proto import event_pb2
 
+from swat_jax import compilation_cache
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
@@ -36,7 +37,7 @@ def final_state(run_dir: Path):
     config = load_config(run_dir / "config.json")
     checkpoints = Checkpoints(run_dir)
     try:
-        return checkpoints.restore(Experiment.build(config).state_shapes())
+        return Experiment.build(config).restore_state(checkpoints)
     finally:
         checkpoints.close()
 
@@ -209,7 +210,12 @@ def test_a_stop_request_is_honoured_within_one_iteration(trained_run, hopper_fol
     assert final_state(tmp_path / "stopped")[1]["iterations"] == len(finished)
 
 
-def run_training_command(flags: list[str], signals_after: dict[str, list[float]], timeout: float = 120):
+def run_training_command(
+    flags: list[str],
+    signals_after: dict[str, list[float]],
+    timeout: float = 120,
+    env: dict[str, str] | None = None,
+):
     """``python -m swat_jax.train FLAGS``; on the first stdout line containing a key, SIGINT after each delay.
 
     Returns (exit status, stdout, stderr, seconds from the last SIGINT to the exit).
@@ -219,7 +225,7 @@ def run_training_command(flags: list[str], signals_after: dict[str, list[float]]
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
     )
     lines, last_signal = [], None
     for line in process.stdout:
@@ -257,9 +263,12 @@ def test_a_second_ctrl_c_aborts_at_once(trained_run, hopper_folder, tmp_path):
 def test_ctrl_c_while_compiling_exits_cleanly_and_the_run_can_be_started(
     trained_run, hopper_folder, tmp_path
 ):
+    """Without the compilation cache the compile takes seconds, so the signal surely lands during it."""
     config = tiny_train_config(tmp_path / "early", hopper_folder, steps=100)
     status, _, stderr, _ = run_training_command(
-        train_flags(config), {"compiling the training iteration": [0.0]}
+        train_flags(config),
+        {"compiling the training iteration": [0.0]},
+        env={compilation_cache.DISABLE_VARIABLE: "0"},
     )
     assert status == 130, stderr
     assert "Traceback" not in stderr
@@ -284,6 +293,14 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
 
 def test_every_named_network_is_an_algo_choice():
     assert typing.get_args(Algorithm) == tuple(NAMED_VARIANTS)
+
+
+def test_smp_hidden_sizes_both_modules_and_is_checked():
+    network = TrainConfig(env="hopper", algo="smp", smp_hidden=32).network()
+    assert (network.up_hidden, network.down_hidden) == ((32, 32), (32, 32))
+    assert TrainConfig(env="hopper", algo="smp").network().down_hidden == (400, 300), "the paper's by default"
+    with pytest.raises(ConfigError, match="--smp-hidden must be a positive whole number, got 0"):
+        TrainConfig(env="hopper", algo="smp", smp_hidden=0)
 
 
 def test_presets_follow_the_budget_convention():

@@ -3,7 +3,8 @@
 Bodies with different trees compile to different MJX programs, so each body is vmapped over its own
 copies and the K programs sit side by side in the same jitted step (a Python loop at trace time, none at
 run time). Observations and actions are padded to L = max_limbs so that the policy sees one batch
-``[K, n, L, F]``; ``structure.limb_mask`` [K, L] tells real limbs from padding (paper section 3).
+``[K, n, L, F]`` (paper section 3); the structure of the bodies, which tells real limbs from padding, is
+the task set's (:func:`swat_jax.networks.task_set`), not the environment's.
 
 Finished copies (terminated, truncated, or unstable) start a new episode in the same step. The step
 returns the observation reached *before* that reset, for the replay buffer, and the state holds the
@@ -19,7 +20,6 @@ import jax.numpy as jnp
 from flax import struct
 
 from swat_jax.envs.body import BodyEnv, EnvState
-from swat_jax.morphology.batch import StructureBatch, pad_structures
 from swat_jax.morphology.mjcf import load
 from swat_jax.morphology.types import Morphology
 
@@ -77,8 +77,6 @@ class MultiTaskEnv:
         copies: n, parallel copies of each body.
         max_limbs: L, the padded limb count; defaults to the largest body's.
         torso_relative_x: see :class:`~swat_jax.envs.body.BodyEnv`.
-        reference_inorder: in-order traversal of the reference code in ``structure``
-            (BENCHMARK.md quirk 2).
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -92,14 +90,15 @@ class MultiTaskEnv:
         *,
         max_limbs: int | None = None,
         torso_relative_x: bool = True,
-        reference_inorder: bool = False,
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
         morphologies = [body if isinstance(body, Morphology) else load(body) for body in bodies]
-        self.structure: StructureBatch = pad_structures(
-            morphologies, max_limbs, reference_inorder=reference_inorder
-        )
+        if not morphologies:
+            raise ValueError("MultiTaskEnv needs at least one body")
+        largest = max(morphologies, key=lambda body: body.num_limbs)
+        if max_limbs is not None and max_limbs < largest.num_limbs:
+            raise ValueError(f"{largest.name} has {largest.num_limbs} limbs, more than max_limbs={max_limbs}")
         self.envs = tuple(BodyEnv(body, torso_relative_x=torso_relative_x) for body in morphologies)
         widths = {env.morphology.name: env.observation_features for env in self.envs}
         if len(set(widths.values())) > 1:
@@ -109,7 +108,7 @@ class MultiTaskEnv:
                 + "; train families with different limb-type vocabularies separately"
             )
         self.copies = copies
-        self.max_limbs = int(self.structure.limb_mask.shape[1])
+        self.max_limbs = largest.num_limbs if max_limbs is None else max_limbs
         self.observation_features = self.envs[0].observation_features
 
     @property

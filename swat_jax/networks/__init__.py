@@ -11,6 +11,7 @@ from swat_jax.networks.policies import (
     make_actor_critic,
     param_count,
 )
+from swat_jax.networks.tasks import TaskSet, task_set
 
 __all__ = [
     "ARCHITECTURES",
@@ -21,8 +22,10 @@ __all__ = [
     "NetworkConfig",
     "Params",
     "StructureMismatch",
+    "TaskSet",
     "check_structures",
     "make_actor_critic",
     "network_config",
     "param_count",
+    "task_set",
 ]

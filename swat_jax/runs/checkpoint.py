@@ -99,8 +99,9 @@ class Checkpoints:
         )
         self.manager.wait_until_finished()
 
-    def restore(self, template: Any) -> tuple[Any, dict[str, Any]]:
-        """The newest checkpoint's state (shaped like ``template``) and info."""
+    def restore(self, template: Any, shardings: Any) -> tuple[Any, dict[str, Any]]:
+        """The newest checkpoint's state (shaped like ``template``, placed as ``shardings``, a matching
+        pytree of shardings, whatever devices wrote it) and info."""
         step = self._latest()
         saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
         expected = manifest(template)
@@ -108,8 +109,13 @@ class Checkpoints:
             raise CheckpointError(
                 f"{self._path(step)} does not match this run: {_differences(saved, expected)}"
             )
+        places = {
+            jax.tree_util.keystr(path): place
+            for path, place in jax.tree_util.tree_leaves_with_path(shardings)
+        }
         abstract = {
-            key: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for key, leaf in flatten(template).items()
+            key: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=places[key])
+            for key, leaf in flatten(template).items()
         }
         restored = self._read(step, state=ocp.args.StandardRestore(abstract), info=ocp.args.JsonRestore())
         return unflatten(template, restored["state"]), dict(restored["info"])
@@ -119,8 +125,12 @@ class Checkpoints:
         return dict(self._read(self._latest(), info=ocp.args.JsonRestore())["info"])
 
     def restore_item(self, name: str, template: Any) -> Any:
-        """The newest checkpoint's ``name`` item (``actor`` or ``critic``), shaped like ``template``."""
-        abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), template)
+        """The newest checkpoint's ``name`` item (``actor`` or ``critic``), shaped like ``template``, on this
+        process's first device (whatever devices wrote it)."""
+        device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        abstract = jax.tree_util.tree_map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=device), template
+        )
         return self._read(self._latest(), **{name: ocp.args.StandardRestore(abstract)})[name]
 
     def close(self) -> None:

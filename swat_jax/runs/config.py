@@ -84,6 +84,8 @@ class TrainConfig:
     """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps 32."""
     max_children: int | None = None
     """SMP: child slots per limb, at least the most children of any limb; None keeps 4."""
+    smp_hidden: int | None = None
+    """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     torso_relative_x: bool = True
     """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
     reference_inorder: bool = False
@@ -130,6 +132,8 @@ class TrainConfig:
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
         _require_positive("--eval-episodes", self.eval_episodes)
+        if self.smp_hidden is not None:
+            _require_positive("--smp-hidden", self.smp_hidden)
         if self.eval_interval < 0:
             raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
         if self.iteration.random_steps < 0:
@@ -149,6 +153,8 @@ class TrainConfig:
     def network(self) -> NetworkConfig:
         """The network of ``algo`` with the sizes given here."""
         sizes = {name: getattr(self, name) for name in NETWORK_SIZES if getattr(self, name) is not None}
+        if self.smp_hidden is not None:
+            sizes.update(up_hidden=(self.smp_hidden,) * 2, down_hidden=(self.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
 
     def training_bodies(self) -> tuple[str, ...]:

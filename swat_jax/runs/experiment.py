@@ -4,12 +4,12 @@ trained policy read back from a run directory (for ``swat_jax.eval`` and ``swat_
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch
@@ -17,8 +17,9 @@ from swat_jax.networks import (
     LimbNetwork,
     Params,
     StructureMismatch,
-    check_structures,
+    TaskSet,
     make_actor_critic,
+    task_set,
 )
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import ConfigError, TrainConfig, load_config
@@ -30,38 +31,41 @@ from swat_jax.td3.iteration import (
     seed_keys,
 )
 from swat_jax.td3.learner import Learner, LearnerState
+from swat_jax.td3.sharding import Placement, placement
 
 CONFIG_FILE = "config.json"
 
 
 @dataclasses.dataclass(frozen=True)
 class Experiment:
-    """The fixed parts of a run: the multi-task environment of the train bodies and the TD3 learner."""
+    """The fixed parts of a run: the task set of its bodies, their multi-task environment and the TD3
+    learner."""
 
     config: TrainConfig
+    tasks: TaskSet
     env: MultiTaskEnv
     learner: Learner
+    placement: Placement
+    """The device mesh of the run's arrays (:mod:`swat_jax.td3.sharding`)."""
 
     @classmethod
-    def build(cls, config: TrainConfig) -> Experiment:
-        """Load the bodies and build the networks; ConfigError if the network cannot take the bodies."""
-        env = MultiTaskEnv(
-            config.training_bodies(),
-            config.copies,
-            torso_relative_x=config.torso_relative_x,
-            reference_inorder=config.reference_inorder,
-        )
+    def build(cls, config: TrainConfig, devices: Sequence[jax.Device] | None = None) -> Experiment:
+        """Load the bodies, build the networks and lay the run out over ``devices`` (default: every device);
+        ConfigError if the network cannot take the bodies."""
         network = config.network()
         try:
-            check_structures(network, env.structure, env.body_names)
+            tasks = task_set(config.training_bodies(), network, reference_inorder=config.reference_inorder)
         except StructureMismatch as error:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
+        env = MultiTaskEnv(tasks.bodies, config.copies, torso_relative_x=config.torso_relative_x)
         if config.init_from:
             _check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features)
-        return cls(config, env, Learner(actor, critic, config.td3))
+        devices = jax.devices() if devices is None else devices
+        layout = placement(config.seeds, env.num_bodies, config.copies, devices)
+        return cls(config, tasks, env, Learner(actor, critic, config.td3), layout)
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
@@ -70,20 +74,23 @@ class Experiment:
         With ``config.init_from``, every seed's actor, critic and target networks are those of the chosen
         seed of that run (optimizers and replay buffers stay fresh).
 
-        Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies).
+        Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies); each
+        device computes its own shards.
         """
-        state = jax.jit(self._initial_state)(self._seed_keys())
+        shardings = self.placement.state_shardings(self.state_shapes())
+        state = jax.jit(self._initial_state, out_shardings=shardings)(self._seed_keys())
         if self.config.init_from:
             state = state.replace(learner=self._transferred(state.learner))
-        return _committed(state)
+        return self._placed(state)
 
     def _transferred(self, learner: LearnerState) -> LearnerState:
         """``learner`` with the networks of seed ``init_seed_index`` of run ``init_from`` in every seed."""
         one_seed = network_items(jax.eval_shape(self.learner.init, jax.random.PRNGKey(0)))
-        networks = _restore_networks(Path(self.config.init_from), one_seed)
+        # On the host: the copies are then placed on the mesh like every other array (several hosts too).
+        networks = jax.device_get(_restore_networks(Path(self.config.init_from), one_seed))
         index, seeds = self.config.init_seed_index, self.config.seeds
         chosen = jax.tree_util.tree_map(
-            lambda leaf: jnp.broadcast_to(leaf[index], (seeds, *leaf.shape[1:])), networks
+            lambda leaf: np.broadcast_to(leaf[index], (seeds, *leaf.shape[1:])), networks
         )
         return learner.replace(
             actor_params=chosen["actor"],
@@ -93,14 +100,25 @@ class Experiment:
         )
 
     def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, dict[str, Any]]:
-        """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one,
-        and its info (CheckpointError if it is missing, unreadable or does not match)."""
-        state, info = checkpoints.restore(self.state_shapes())
-        return _committed(state), info
+        """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one
+        (whatever mesh wrote it), and its info (CheckpointError if it is missing, unreadable or does not
+        match)."""
+        shapes = self.state_shapes()
+        state, info = checkpoints.restore(shapes, self.placement.state_shardings(shapes))
+        return self._placed(state), info
 
     def state_shapes(self) -> TrainState:
         """The shapes and dtypes of :meth:`init_state`, without allocating anything."""
         return jax.eval_shape(self._initial_state, self._seed_keys())
+
+    def _placed(self, state: TrainState) -> TrainState:
+        """Every array of ``state`` committed to its place on the mesh.
+
+        The compiled iteration, and so its persistent-cache key, differs between committed and uncommitted
+        inputs (their buffers are donated differently). Restored checkpoints mix both (zero-size MJX arrays
+        are rebuilt uncommitted), so fresh and resumed runs go through here to share one cache entry.
+        """
+        return jax.device_put(state, self.placement.state_shardings(state))
 
     def _seed_keys(self) -> jax.Array:
         return seed_keys(self.config.seed, self.config.seeds)
@@ -109,21 +127,23 @@ class Experiment:
         return init_seeded_train_state(self.env, self.learner, self.config.iteration, rngs)
 
     def iteration(self) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
-        """The jitted training iteration of every seed; it consumes (donates) its input state."""
+        """The jitted training iteration of every seed, partitioned over the mesh; it consumes (donates) its
+        input state and returns the state placed as it came."""
+        shardings = self.placement.state_shardings(self.state_shapes())
         return jax.jit(
-            make_seeded_train_iteration(self.env, self.learner, self.config.iteration), donate_argnums=0
+            make_seeded_train_iteration(self.env, self.tasks.structure, self.learner, self.config.iteration),
+            in_shardings=(shardings,),
+            out_shardings=(shardings, self.placement.seeded()),
+            donate_argnums=0,
         )
 
     def evaluation(self) -> Callable[[Params, jax.Array], Episodes]:
         """The jitted deterministic evaluation of actor parameters [S, ...] on the train bodies,
         ``config.eval_episodes`` episodes each (:func:`swat_jax.td3.evaluation.make_evaluation`)."""
         env = MultiTaskEnv(
-            [body.morphology for body in self.env.envs],
-            self.config.eval_episodes,
-            torso_relative_x=self.config.torso_relative_x,
-            reference_inorder=self.config.reference_inorder,
+            self.tasks.bodies, self.config.eval_episodes, torso_relative_x=self.config.torso_relative_x
         )
-        return jax.jit(make_evaluation(env, self.learner.actor))
+        return jax.jit(make_evaluation(env, self.tasks.structure, self.learner.actor))
 
     def info(self) -> dict[str, Any]:
         """What a policy needs besides its parameters, stored in every checkpoint."""
@@ -217,16 +237,6 @@ def _check_transfer(config: TrainConfig, observation_features: int) -> None:
             + "; ".join(problems)
             + ". Give this run the same --algo and network sizes as that one"
         )
-
-
-def _committed(state: TrainState) -> TrainState:
-    """Every array of ``state`` committed to the default device.
-
-    The compiled iteration, and so its persistent-cache key, differs between committed and uncommitted
-    inputs (their buffers are donated differently). Restored checkpoints mix both (zero-size MJX arrays
-    are rebuilt uncommitted), so fresh and resumed runs go through here to share one cache entry.
-    """
-    return jax.device_put(state, jax.devices()[0])
 
 
 @dataclasses.dataclass(frozen=True)

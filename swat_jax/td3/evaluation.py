@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from swat_jax.envs.multi_task import MultiTaskEnv
+from swat_jax.morphology import StructureBatch
 from swat_jax.networks import LimbNetwork, Params
 
 
@@ -34,16 +35,17 @@ class Episodes:
 
 
 def make_evaluation(
-    env: MultiTaskEnv, actor: LimbNetwork, *, record: bool = False
+    env: MultiTaskEnv, structure: StructureBatch, actor: LimbNetwork, *, record: bool = False
 ) -> Callable[[Params, jax.Array], Episodes]:
     """The pure ``evaluate(params [S, ...], rng) -> Episodes``; jit it once per run.
 
     Args:
         env: the bodies to evaluate; ``env.copies`` episodes per body.
+        structure: their StructureBatch [K, ...] padded to ``env.max_limbs`` (the task set's).
         actor: the policy network (``actor.apply(params, observation [n, L, F], structure)``).
         record: also keep the joint positions of seed 0's first episode of every body (for videos).
     """
-    structure = jax.tree_util.tree_map(jnp.asarray, env.structure)
+    structure = jax.tree_util.tree_map(jnp.asarray, structure)
     max_steps = max(body.morphology.family.max_episode_steps for body in env.envs)
     act = jax.vmap(jax.vmap(actor.apply, in_axes=(None, 0, 0)), in_axes=(0, 0, None))
 

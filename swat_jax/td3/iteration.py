@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState
+from swat_jax.morphology import StructureBatch
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert, sample
 
@@ -108,22 +109,27 @@ def seed_keys(first_seed: int, seeds: int) -> jax.Array:
 
 
 def make_seeded_train_iteration(
-    env: MultiTaskEnv, learner: Learner, config: IterationConfig
+    env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig
 ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
     """:func:`make_train_iteration` over a leading seed axis (:data:`SEED_AXES`); metrics get a leading
     [S] axis. Jit it once: one compilation serves every seed."""
-    return jax.vmap(make_train_iteration(env, learner, config), in_axes=(SEED_AXES,), out_axes=(SEED_AXES, 0))
+    return jax.vmap(
+        make_train_iteration(env, structure, learner, config), in_axes=(SEED_AXES,), out_axes=(SEED_AXES, 0)
+    )
 
 
 def make_train_iteration(
-    env: MultiTaskEnv, learner: Learner, config: IterationConfig
+    env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig
 ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
     """The pure ``iteration(state) -> (state, metrics)``; jit it once.
+
+    ``structure`` is the bodies' StructureBatch [K, ...] padded to ``env.max_limbs``, in ``env``'s body
+    order (the task set's, :func:`swat_jax.networks.task_set`).
 
     metrics: per-update critic and actor losses [updates], per-task rewards of the chunk [chunk, K, n], and
     ``episodes``, the sums over the episodes each task finished during this iteration (EpisodeStats, [K]).
     """
-    structure = jax.tree_util.tree_map(jnp.asarray, env.structure)
+    structure = jax.tree_util.tree_map(jnp.asarray, structure)
     mask = structure.limb_mask[:, None, :]
 
     def act(state: TrainState, rng: jax.Array) -> jax.Array:

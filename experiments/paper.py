@@ -1,0 +1,453 @@
+"""The paper's experiments as one command each: train the grid, then draw the figure or write the table.
+
+    python experiments/paper.py figure4|figure5|figure6|tables --scale tiny|paper [--sets SET ...]
+
+  figure4  multi-task learning (section 5.2): SWAT, AMORPHEUS and SMP on every set
+  figure5  transfer (section 5.3): SWAT, AMORPHEUS and SMP pretrained on a set's train bodies, then
+           fine-tuned on its held-out bodies, against SWAT trained on them from scratch ("w/o transfer")
+  figure6  ablations (section 5.4): SWAT without its positional embedding (PE), its relational
+           embedding (RE), and both
+  tables   zero-shot returns on held-out bodies (appendix A.4, Tables 3-4) of the figure4 runs
+
+Every (set, algorithm) is one ``python -m swat_jax.train`` process that trains all seeds in one program
+(``--seeds``), in ``OUT/runs/<set>-<algorithm>``; commands share runs (figure5, figure6 and tables reuse
+figure4's). A run that has reached its budget is kept, one that stopped part-way is resumed, so after a
+Ctrl-C (the running run checkpoints first) the same command continues where it stopped. Then the
+figure (``OUT/<figure>.png``, its numbers in ``OUT/<figure>.csv``) or the tables (``OUT/tables.md``)
+are written, with ``OUT/<command>.md``: the command, machine, date, wall clock of each run and the
+final returns.
+
+Scales: ``paper`` is the paper's settings (paper-sized networks and TD3, 10M environment steps per set
+summed over its bodies, 1M for fine-tuning, 5 seeds) for a GPU; ``tiny`` (small networks, 3 seeds,
+80K steps per set) fits Hopper++ and Walker++ into about an hour of 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import datetime
+import json
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from machine import cpu_model, host_cores, software_versions
+
+from swat_jax.morphology import get_set
+from swat_jax.networks import NAMED_VARIANTS
+from swat_jax.plot import plot_curves
+from swat_jax.runs.checkpoint import Checkpoints
+from swat_jax.runs.config import TrainConfig, load_config
+from swat_jax.runs.experiment import CONFIG_FILE
+from swat_jax.train import INTERRUPTED_STATUS, parse_command
+
+MAIN_ALGORITHMS = ("swat", "amorpheus", "smp")
+ABLATIONS = ("swat", "swat_no_re", "swat_no_pe", "swat_no_pe_re")
+COMMANDS = ("figure4", "figure5", "figure6", "tables")
+TIMINGS_FILE = "timings.json"
+"""Wall clock of each run, kept in OUT across invocations (a resumed run adds its parts)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Scale:
+    """The size of every run of the grid."""
+
+    name: str
+    seeds: int
+    """Seeds per run, trained in one program."""
+    steps: int
+    """Environment steps of a training run, summed over the set's bodies (the paper's convention)."""
+    finetune_steps: int
+    """Environment steps of a fine-tuning run on the held-out bodies (figure5)."""
+    table_episodes: int
+    """Deterministic episodes per body and seed of the zero-shot tables."""
+    flags: str
+    """Every other ``swat_jax.train`` flag: preset, network sizes, iteration, TD3, logging."""
+    sets: dict[str, tuple[str, ...]]
+    """The sets each command runs on unless ``--sets`` names others."""
+    smp_flags: str = ""
+    """More flags for SMP runs: its sizes, which the transformer's --width, --layers and --feedforward do not set."""
+
+    def run_flags(self, algorithm: str) -> tuple[str, ...]:
+        """The scale's flags for a run of ``algorithm``."""
+        return (*self.flags.split(), *(self.smp_flags.split() if algorithm == "smp" else ()))
+
+
+SCALES = {
+    "paper": Scale(
+        name="paper",
+        seeds=5,
+        steps=10_000_000,
+        finetune_steps=1_000_000,
+        table_episodes=100,
+        flags="--preset paper --eval-interval 200000 --log-interval 50000",
+        sets={
+            "figure4": ("hopper", "walker", "humanoid", "cheetah", "wh", "cwhh", "cwh", "animal_walkers"),
+            "figure5": ("humanoid", "cwhh"),
+            "figure6": ("animal_walkers", "cwhh"),
+            "tables": ("walker", "humanoid", "cheetah", "cwhh"),
+        },
+    ),
+    "tiny": Scale(
+        name="tiny",
+        seeds=3,
+        steps=80_000,
+        finetune_steps=40_000,
+        table_episodes=10,
+        flags="--preset fast --width 32 --layers 1 --feedforward 64 --copies 8 --iteration.chunk 25 "
+        "--iteration.updates 40 --iteration.random-steps 1000 --iteration.capacity 50000 "
+        "--td3.batch-size 100 --td3.learning-rate 0.001 --log-interval 4000 --checkpoint-interval 40000",
+        sets={
+            "figure4": ("hopper", "walker"),
+            "figure5": ("walker",),
+            "figure6": ("hopper",),
+            "tables": ("walker",),
+        },
+        smp_flags="--smp-hidden 32",
+    ),
+}
+"""The scales of ``--scale``."""
+
+
+class GridError(RuntimeError):
+    """The grid cannot go on; the message says why and what to do."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One training run of the grid: its directory and its ``swat_jax.train`` flags (without --run-dir)."""
+
+    run_dir: Path
+    flags: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return self.run_dir.name
+
+    def command(self) -> list[str]:
+        """The command that starts this run."""
+        return [sys.executable, "-m", "swat_jax.train", *self.flags, "--run-dir", str(self.run_dir)]
+
+    def config(self) -> TrainConfig:
+        """The TrainConfig this run trains with."""
+        command, _ = parse_command([*self.flags, "--run-dir", str(self.run_dir)])
+        return command.config()
+
+
+def set_label(environment_set: str) -> str:
+    """The set's name in run directory names: a benchmark set's name, or a folder's name."""
+    return Path(environment_set).name
+
+
+def pretraining(out: Path, scale: Scale, environment_set: str, algorithm: str) -> RunSpec:
+    """``algorithm`` trained on the train bodies of ``environment_set`` (figures 4 and 6, pretraining, tables)."""
+    flags = f"--env {environment_set} --algo {algorithm} --seeds {scale.seeds} --steps {scale.steps}"
+    return RunSpec(
+        out / "runs" / f"{set_label(environment_set)}-{algorithm}",
+        (*flags.split(), *scale.run_flags(algorithm)),
+    )
+
+
+def fine_tuning(out: Path, scale: Scale, environment_set: str, algorithm: str, transfer: bool) -> RunSpec:
+    """``algorithm`` trained on the held-out bodies, from its pretrained run (``transfer``) or from scratch."""
+    source = pretraining(out, scale, environment_set, algorithm)
+    start = ("--init-from", str(source.run_dir)) if transfer else ()
+    flags = f"--env {environment_set} --split test --algo {algorithm} --seeds {scale.seeds} --steps {scale.finetune_steps}"
+    name = f"{set_label(environment_set)}-test-{algorithm}-{'transfer' if transfer else 'scratch'}"
+    return RunSpec(out / "runs" / name, (*flags.split(), *start, *scale.run_flags(algorithm)))
+
+
+def with_test_bodies(sets: Sequence[str], command: str) -> list[str]:
+    """The sets that have held-out bodies; GridError if none has."""
+    kept = [environment_set for environment_set in sets if get_set(environment_set).split("test")]
+    skipped = sorted(set(sets) - set(kept))
+    if skipped:
+        print(f"{command}: skipping {', '.join(skipped)} (no held-out test bodies)", file=sys.stderr)
+    if not kept:
+        raise GridError(f"{command} needs sets with held-out bodies, e.g. walker, humanoid, cheetah or cwhh")
+    return kept
+
+
+def grid(
+    command: str, scale: Scale, sets: Sequence[str], algorithms: Sequence[str], out: Path
+) -> list[RunSpec]:
+    """The training runs ``command`` needs, in the order they run (pretraining before fine-tuning)."""
+    if command in ("figure4", "figure6"):
+        return [pretraining(out, scale, s, algorithm) for s in sets for algorithm in algorithms]
+    if command == "tables":
+        return [
+            pretraining(out, scale, s, algorithm)
+            for s in with_test_bodies(sets, command)
+            for algorithm in algorithms
+        ]
+    runs = []
+    for environment_set in with_test_bodies(sets, command):
+        runs += [pretraining(out, scale, environment_set, algorithm) for algorithm in algorithms]
+        runs += [
+            fine_tuning(out, scale, environment_set, algorithm, transfer=True) for algorithm in algorithms
+        ]
+        runs.append(fine_tuning(out, scale, environment_set, "swat", transfer=False))
+    return runs
+
+
+def plotted_runs(command: str, runs: Sequence[RunSpec]) -> list[RunSpec]:
+    """The runs drawn in ``command``'s figure: figure5 draws the fine-tuning runs only."""
+    if command == "figure5":
+        return [run for run in runs if "--split" in run.flags]
+    return list(runs)
+
+
+# Running the grid
+
+
+def progress(run: RunSpec) -> int | None:
+    """Environment steps of ``run``'s newest checkpoint; None if it has not started.
+
+    Raises:
+        GridError: the directory holds a run with other settings.
+    """
+    if not (run.run_dir / CONFIG_FILE).is_file():
+        return None
+    saved, expected = load_config(run.run_dir / CONFIG_FILE), run.config()
+    differences = [
+        f"{field.name} {getattr(saved, field.name)!r} (wanted {getattr(expected, field.name)!r})"
+        for field in dataclasses.fields(TrainConfig)
+        if field.name not in ("steps", "run_dir")
+        and getattr(saved, field.name) != getattr(expected, field.name)
+    ]
+    if differences:
+        raise GridError(
+            f"{run.run_dir} holds a run with other settings: {', '.join(differences)}; delete it, or give "
+            "another --out"
+        )
+    checkpoints = Checkpoints(run.run_dir)
+    try:
+        return checkpoints.latest_step() or 0
+    finally:
+        checkpoints.close()
+
+
+def run_child(command: list[str]) -> int:
+    """Run ``command`` to its end and return its exit status.
+
+    A Ctrl-C reaches the child too (same process group): the training run checkpoints and exits, and
+    this waits for it instead of killing it, as ``subprocess.run`` would.
+    """
+    process = subprocess.Popen(command)
+    while True:
+        try:
+            return process.wait()
+        except KeyboardInterrupt:
+            continue
+
+
+def train_all(runs: Sequence[RunSpec], out: Path) -> None:
+    """Train every run that has not reached its budget, one after another; record their wall clock."""
+    timings_path = out / TIMINGS_FILE
+    timings = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
+    for index, run in enumerate(runs, start=1):
+        steps, budget = progress(run), run.config().steps
+        label = f"[{index}/{len(runs)}] {run.name}"
+        if steps is not None and steps >= budget:
+            print(f"{label}: done ({steps:,} steps), kept", file=sys.stderr)
+            continue
+        command = run.command() if steps is None else [
+            sys.executable, "-m", "swat_jax.train", "--resume", str(run.run_dir), "--steps", str(budget)
+        ]  # fmt: skip
+        print(f"{label}: {'training' if steps is None else f'resuming at {steps:,} steps'}", file=sys.stderr)
+        print(f"  python {shlex.join(command[1:])}", file=sys.stderr)
+        start = time.perf_counter()
+        status = run_child(command)
+        timings[run.name] = timings.get(run.name, 0.0) + time.perf_counter() - start
+        out.mkdir(parents=True, exist_ok=True)
+        timings_path.write_text(json.dumps(timings, indent=2) + "\n")
+        if status == INTERRUPTED_STATUS:
+            raise GridInterrupted(
+                f"{run.name} stopped before its budget; run the same command again to continue"
+            )
+        if status != 0 or (progress(run) or 0) < budget:
+            raise GridError(f"{run.name}: swat_jax.train exited with status {status} (its message is above)")
+
+
+class GridInterrupted(GridError):
+    """Ctrl-C: the running run checkpointed; the same command continues."""
+
+
+# Figures, tables and their reports
+
+
+def final_points(csv_path: Path) -> list[dict[str, str]]:
+    """The last row of every (panel, algorithm) of a curves CSV written by ``swat_jax.plot``."""
+    last: dict[tuple[str, str], dict[str, str]] = {}
+    with csv_path.open() as file:
+        for row in csv.DictReader(file):
+            last[row["panel"], row["algorithm"]] = row
+    return list(last.values())
+
+
+def final_points_table(csv_path: Path) -> str:
+    """A Markdown table of the final points of a curves CSV."""
+    lines = [
+        "| panel | algorithm | environment steps | return (mean ± s.e. over seeds) | seeds |",
+        "|---|---|---|---|---|",
+    ]
+    for row in final_points(csv_path):
+        lines.append(
+            f"| {row['panel']} | {row['algorithm']} | {int(row['env_steps']):,} | "
+            f"{float(row['mean']):.1f} ± {float(row['standard_error']):.1f} | {row['seeds']} |"
+        )
+    return "\n".join(lines)
+
+
+def draw_figure(command: str, runs: Sequence[RunSpec], out: Path, scale: Scale) -> list[str]:
+    """Draw ``command``'s curves (and the evaluation curves when the scale evaluates during training);
+    returns the report's Markdown sections."""
+    run_dirs = [run.run_dir for run in plotted_runs(command, runs)]
+    metrics = ["train"] + (["eval"] if "--eval-interval" in scale.flags else [])
+    sections = []
+    for metric in metrics:
+        png = out / (f"{command}.png" if metric == "train" else f"{command}_eval.png")
+        plot_curves(run_dirs, png, metric=metric)
+        what = (
+            "training episodes (exploration noise on), as in the paper"
+            if metric == "train"
+            else ("deterministic evaluations during training")
+        )
+        sections.append(
+            f"![{command}]({png.name})\n\nFinal point of each curve, return of the {what} "
+            f"(numbers of every point: [{png.with_suffix('.csv').name}]({png.with_suffix('.csv').name})):\n\n"
+            + final_points_table(png.with_suffix(".csv"))
+        )
+    return sections
+
+
+def write_tables(runs: Sequence[RunSpec], out: Path, scale: Scale) -> list[str]:
+    """Zero-shot returns of every set's runs on its held-out bodies, one Markdown table per set
+    (``python -m swat_jax.eval --split test --markdown``); written to ``OUT/tables.md`` too."""
+    by_set: dict[str, list[RunSpec]] = {}
+    for run in runs:
+        by_set.setdefault(run.config().env, []).append(run)
+    sections = []
+    for environment_set, set_runs in by_set.items():
+        command = [
+            sys.executable, "-m", "swat_jax.eval", *(str(run.run_dir) for run in set_runs),
+            "--split", "test", "--episodes", str(scale.table_episodes), "--markdown",
+        ]  # fmt: skip
+        print(f"tables: python {shlex.join(command[1:])}", file=sys.stderr)
+        result = subprocess.run(command, stdout=subprocess.PIPE, text=True)
+        if result.returncode != 0:
+            raise GridError(f"swat_jax.eval exited with status {result.returncode} (its message is above)")
+        sections.append(
+            f"### {set_label(environment_set)}: held-out bodies, zero-shot\n\n{result.stdout.strip()}"
+        )
+    (out / "tables.md").write_text("\n\n".join(sections) + "\n")
+    return sections
+
+
+def report(
+    command: str, argv: Sequence[str], scale: Scale, runs: Sequence[RunSpec], out: Path, sections: list[str]
+) -> Path:
+    """Write ``OUT/<command>.md``: the command, machine, date, settings, wall clock per run, results."""
+    timings_path = out / TIMINGS_FILE
+    timings = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
+    versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
+    lines = [
+        f"# {command}, scale {scale.name}",
+        "",
+        f"- Command: `python experiments/paper.py {shlex.join(argv)}`",
+        f"- Date: {datetime.date.today().isoformat()}",
+        f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
+        f"- Every run: {scale.seeds} seeds in one program; `{scale.flags}`"
+        + (f"; SMP runs also `{scale.smp_flags}`" if scale.smp_flags else ""),
+        "",
+        "| run | environment steps per seed | wall clock (min, compile included) |",
+        "|---|---|---|",
+    ]
+    for run in runs:
+        seconds = timings.get(run.name)
+        minutes = "-" if seconds is None else f"{seconds / 60:.1f}"
+        lines.append(f"| {run.name} | {run.config().steps:,} | {minutes} |")
+    path = out / f"{command}.md"
+    path.write_text("\n".join([*lines, "", *sections]) + "\n")
+    return path
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/paper.py",
+        description=__doc__.split("\n\n")[0],
+        epilog="Runs are kept and resumed: after a Ctrl-C, the same command continues where it stopped.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("command", choices=COMMANDS, help="the figure or table to produce")
+    parser.add_argument(
+        "--scale",
+        choices=tuple(SCALES),
+        default="tiny",
+        help="tiny (default: small networks, 3 seeds, 80K steps per set; about an hour on 2 CPU cores) or "
+        "paper (the paper's settings, 5 seeds, 10M steps per set; for a GPU)",
+    )
+    parser.add_argument(
+        "--sets",
+        nargs="+",
+        metavar="SET",
+        help="environment sets (or MJCF folders) to run; default: the scale's sets for the command",
+    )
+    parser.add_argument(
+        "--algos",
+        nargs="+",
+        metavar="ALGO",
+        choices=tuple(NAMED_VARIANTS),
+        help=f"algorithms to run; default: {', '.join(MAIN_ALGORITHMS)} ({', '.join(ABLATIONS)} for figure6)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="the folder for runs, figures and reports; default experiments/results/<scale>",
+    )
+    parser.add_argument("--dry-run", action="store_true", help="print the training commands and stop")
+    return parser
+
+
+def produce(
+    command: str, scale: Scale, sets: Sequence[str], algorithms: Sequence[str], out: Path, argv: Sequence[str]
+) -> Path:
+    """Train ``command``'s grid, draw its figure or tables, write its report; returns the report's path."""
+    runs = grid(command, scale, sets, algorithms, out)
+    train_all(runs, out)
+    sections = (
+        write_tables(runs, out, scale) if command == "tables" else draw_figure(command, runs, out, scale)
+    )
+    return report(command, argv, scale, runs, out, sections)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser().parse_args(argv)
+    scale = SCALES[args.scale]
+    sets = args.sets or scale.sets[args.command]
+    algorithms = args.algos or (ABLATIONS if args.command == "figure6" else MAIN_ALGORITHMS)
+    out = args.out or Path("experiments/results") / scale.name
+    try:
+        if args.dry_run:
+            for run in grid(args.command, scale, sets, algorithms, out):
+                print("python", shlex.join(run.command()[1:]))
+            return 0
+        path = produce(args.command, scale, sets, algorithms, out, argv)
+    except GridInterrupted as error:
+        print(f"\n{error}", file=sys.stderr)
+        return INTERRUPTED_STATUS
+    except (GridError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""Training iterations over a device mesh against one device: environment steps per second after compilation.
+
+Each arm runs in its own process (this script with ``--arm N``) with ``--xla_force_host_platform_device_count``
+fake CPU devices (the flag must be set before JAX starts) and trains over the first N of them, as
+``train --devices N`` lays a run out (:mod:`swat_jax.td3.sharding`), timed by the preset benchmark's
+``measure``. On a CPU the fake devices share the same cores, so this measures what the partitioning
+costs, not a speed-up; on a multi-GPU machine ``--real`` uses the real devices.
+
+    python experiments/sharding_benchmark.py [--env hopper] [--seeds 4] [--devices 1 2 4] [--iterations 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import jax
+from machine import cpu_model, host_cores, software_versions
+from preset_benchmark import measure
+
+from swat_jax.runs.config import TrainConfig
+from swat_jax.td3.iteration import IterationConfig
+from swat_jax.td3.learner import TD3Config
+from swat_jax.td3.sharding import placement
+
+
+def arm_config(env: str, seeds: int) -> TrainConfig:
+    """SWAT of width 32, 1 layer; 8 copies, chunk 25, 20 updates of batch 100 per body per iteration."""
+    return TrainConfig(
+        env=env,
+        seeds=seeds,
+        copies=8,
+        width=32,
+        layers=1,
+        feedforward=64,
+        iteration=IterationConfig(chunk=25, updates=20, random_steps=0, capacity=20_000),
+        td3=TD3Config(batch_size=100),
+    )
+
+
+def arm(env: str, seeds: int, devices: int, iterations: int) -> None:
+    """Measure one arm in this process and print its JSON line."""
+    config = arm_config(env, seeds)
+    chosen = jax.devices()[:devices]
+    result = measure(f"{devices} devices", config, iterations, chosen)
+    layout = placement(seeds, len(config.training_bodies()), config.copies, chosen)
+    print(
+        json.dumps(
+            {
+                "devices": devices,
+                "mesh": layout.describe().split(";")[0],
+                "compile_s": result.compile_seconds,
+                "steps_per_second": result.env_steps_per_second * seeds,
+            }
+        )
+    )
+
+
+def run_arm(args: argparse.Namespace, devices: int) -> dict:
+    """One arm in its own process; its JSON line."""
+    environment = dict(os.environ)
+    if not args.real:
+        environment["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={max(args.devices)}"
+    command = [sys.executable, __file__, "--env", args.env, "--seeds", str(args.seeds)]
+    command += ["--iterations", str(args.iterations), "--arm", str(devices)]
+    result = subprocess.run(command, env=environment, check=True, capture_output=True, text=True)
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
+    parser.add_argument("--seeds", type=int, default=4, help="seeds in the program (default 4)")
+    parser.add_argument(
+        "--devices", type=int, nargs="+", default=[1, 2, 4], help="device counts (default 1 2 4)"
+    )
+    parser.add_argument("--iterations", type=int, default=5, help="timed iterations per arm (default 5)")
+    parser.add_argument("--real", action="store_true", help="the machine's real devices, not fake CPU ones")
+    parser.add_argument("--arm", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.arm:
+        arm(args.env, args.seeds, args.arm, args.iterations)
+        return
+
+    start = time.perf_counter()
+    rows = [run_arm(args, devices) for devices in args.devices]
+    print(f"CPU: {cpu_model()}, {host_cores()} cores; {software_versions()}")
+    print(
+        f"SWAT width 32, 1 layer on {args.env}, {args.seeds} seeds, 8 copies, chunk 25, 20 updates of batch "
+        f"100 per body per iteration; {'real' if args.real else 'fake CPU'} devices; "
+        f"{time.perf_counter() - start:.0f} s in all"
+    )
+    print("| devices | mesh | compile (s) | env steps/s (all seeds) | vs 1 device |")
+    print("|---|---|---|---|---|")
+    base = rows[0]["steps_per_second"]
+    for row in rows:
+        print(
+            f"| {row['devices']} | {row['mesh']} | {row['compile_s']:.1f} | {row['steps_per_second']:,.0f} | "
+            f"{row['steps_per_second'] / base:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""Run by tests/test_sharding.py in a process with 4 fake CPU devices: train a run over a 2 x 2 mesh and its
+unsharded twin, resume each on the other layout, then evaluate and export the sharded one.
+
+    XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_twins.py BODY_FOLDER OUT
+
+Prints one JSON object: the mesh lines the runs printed, the largest differences between the twins'
+states (after training, and after each was resumed on the other layout), the evaluation's returns and
+the exported policy's actions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+from conftest import tiny_train_config
+
+from swat_jax import export
+from swat_jax.eval import evaluate
+from swat_jax.runs.checkpoint import Checkpoints
+from swat_jax.runs.experiment import Experiment, load_policy
+from swat_jax.train import train
+
+
+def config(out: Path, folder: Path, name: str, steps: int):
+    """2 seeds of a 1-layer AMORPHEUS on the folder's 2 bodies, 2 copies each: 100 steps per iteration."""
+    return tiny_train_config(
+        out / name, folder, steps=steps, eval_interval=0, log_interval=200, checkpoint_interval=200
+    )
+
+
+def final_state(run_config):
+    checkpoints = Checkpoints(run_config.directory())
+    try:
+        return Experiment.build(run_config, jax.devices()[:1]).restore_state(checkpoints)[0]
+    finally:
+        checkpoints.close()
+
+
+def largest_differences(first, second) -> dict[str, float]:
+    """Over the float arrays of two states: the largest absolute difference relative to max(1, |value|),
+    and whether every integer array is equal."""
+    relative, integers_equal = 0.0, True
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(second), strict=True):
+        a, b = np.asarray(a), np.asarray(b)
+        if not a.size:
+            continue
+        if np.issubdtype(a.dtype, np.floating):
+            scale = np.maximum(1.0, np.abs(b))
+            relative = max(relative, float(np.max(np.abs(a - b) / scale)))
+        else:
+            integers_equal &= bool(np.array_equal(a, b))
+    return {"relative": relative, "integers_equal": integers_equal}
+
+
+def trained(run_config, devices: int, resume: bool = False) -> str:
+    """Train (or resume) on the first ``devices`` devices; returns the mesh line the run printed."""
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        train(run_config, progress=False, devices=devices, resume=resume)
+    return next(line for line in printed.getvalue().splitlines() if line.startswith("mesh of"))
+
+
+def main(folder: Path, out: Path) -> None:
+    sharded, unsharded = config(out, folder, "sharded", 400), config(out, folder, "unsharded", 400)
+    meshes = [trained(sharded, 4), trained(unsharded, 1)]
+    after_training = largest_differences(final_state(sharded), final_state(unsharded))
+
+    sharded, unsharded = config(out, folder, "sharded", 600), config(out, folder, "unsharded", 600)
+    meshes += [trained(sharded, 1, resume=True), trained(unsharded, 4, resume=True)]
+    after_resume = largest_differences(final_state(sharded), final_state(unsharded))
+
+    policy = load_policy(sharded.directory())
+    evaluation = evaluate(policy, policy.info["bodies"], episodes=2)
+    export.export_policy(sharded.directory(), out / "policy.npz")
+    loaded = export.load(out / "policy.npz")
+    observation = np.zeros((3, loaded.max_limbs, loaded.observation_features), np.float32)
+    actions = np.asarray(loaded(observation, loaded.bodies[0]))
+    print(
+        json.dumps(
+            {
+                "devices": len(jax.devices()),
+                "meshes": meshes,
+                "after_training": after_training,
+                "after_resume": after_resume,
+                "env_steps": [final_state(run).env_steps.item() for run in (sharded, unsharded)],
+                "eval_returns": [result.returns.tolist() for result in evaluation],
+                "actions_shape": list(actions.shape),
+                "actions_finite": bool(np.isfinite(actions).all()),
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]), Path(sys.argv[2]))
