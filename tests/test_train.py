@@ -268,7 +268,8 @@ def test_ctrl_c_while_compiling_exits_cleanly_and_the_run_can_be_started(
     status, _, stderr, _ = run_training_command(
         train_flags(config),
         {"compiling the training iteration": [0.0]},
-        env={compilation_cache.DISABLE_VARIABLE: "0"},
+        # JAX's own switch too: the cache directory this process set is inherited through the environment.
+        env={compilation_cache.DISABLE_VARIABLE: "0", "JAX_ENABLE_COMPILATION_CACHE": "false"},
     )
     assert status == 130, stderr
     assert "Traceback" not in stderr

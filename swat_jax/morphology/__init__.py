@@ -1,6 +1,13 @@
 """Bodies as trees of limbs: MJCF parsing, family constants, structural encodings, environment sets."""
 
-from swat_jax.morphology.batch import StructureBatch, pad_structures
+from swat_jax.morphology.batch import (
+    LimbBucket,
+    StructureBatch,
+    bucket_slice,
+    bucket_structures,
+    limb_buckets,
+    pad_structures,
+)
 from swat_jax.morphology.encodings import (
     RELATION_NAMES,
     TRAVERSAL_NAMES,
@@ -17,11 +24,15 @@ __all__ = [
     "TRAVERSAL_NAMES",
     "EnvironmentSet",
     "FamilySpec",
+    "LimbBucket",
     "Morphology",
     "MorphologyError",
     "StructureBatch",
     "benchmark_names",
+    "bucket_slice",
+    "bucket_structures",
     "get_set",
+    "limb_buckets",
     "load",
     "pad_structures",
     "relation_features",

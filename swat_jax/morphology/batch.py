@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import jax
 import numpy as np
 
 from swat_jax.morphology.encodings import (
@@ -87,3 +88,80 @@ def pad_structures(
         batch.joint_ranges[row, :n] = body.joint_range_array()
         batch.limb_motors[row, :n] = body.limb_motors
     return batch
+
+
+class LimbBucket(NamedTuple):
+    """Tasks computed together at their own padded limb count (static: part of the program's shapes)."""
+
+    tasks: tuple[int, ...]
+    """Indices into the task axis, in order."""
+    limbs: int
+    """The largest limb count of these tasks; their arrays are cut to it."""
+
+
+def limb_buckets(num_limbs: Sequence[int], count: int) -> tuple[LimbBucket, ...]:
+    """Group tasks into at most ``count`` buckets of similar size, with the fewest padded limb slots.
+
+    Tasks sorted by limb count are cut into contiguous runs; a run of tasks costs (tasks) x (its largest
+    limb count) slots, and the cuts minimise the total (dynamic programming over the sorted counts).
+    Animal-Walkers' [4, 7, 8, 9, 13] limbs take 65 slots padded to 13, 44 in 3 buckets ({4}, {7, 8, 9},
+    {13}). Each bucket is one more copy of the networks in the compiled update: fewer FLOPs, longer
+    compile.
+
+    Returns:
+        The buckets, smallest limb count first; task indices ascend within each.
+    """
+    if count < 1:
+        raise ValueError(f"limb buckets must be at least 1, got {count}")
+    order = sorted(range(len(num_limbs)), key=lambda task: (num_limbs[task], task))
+    sizes = [int(num_limbs[task]) for task in order]
+    tasks = len(sizes)
+    count = min(count, tasks)
+    # best[k][end]: fewest slots for the first `end` sorted tasks in k buckets; cut[k][end]: where the last starts.
+    best = [[float("inf")] * (tasks + 1) for _ in range(count + 1)]
+    cut = [[0] * (tasks + 1) for _ in range(count + 1)]
+    best[0][0] = 0
+    for k in range(1, count + 1):
+        for end in range(1, tasks + 1):
+            for start in range(end):
+                slots = best[k - 1][start] + (end - start) * sizes[end - 1]
+                if slots < best[k][end]:
+                    best[k][end], cut[k][end] = slots, start
+    k = min(range(1, count + 1), key=lambda used: (best[used][tasks], used))
+    buckets, end = [], tasks
+    while end > 0:
+        start = cut[k][end]
+        buckets.append(LimbBucket(tuple(sorted(order[start:end])), sizes[end - 1]))
+        end, k = start, k - 1
+    return tuple(reversed(buckets))
+
+
+def bucket_slice(array: jax.Array, bucket: LimbBucket, limb_axes: Sequence[int]) -> jax.Array:
+    """``array``'s rows ``bucket.tasks`` (axis 0), cut to ``bucket.limbs`` along every axis of ``limb_axes``."""
+    array = array[np.asarray(bucket.tasks)]
+    for axis in limb_axes:
+        array = jax.lax.slice_in_dim(array, 0, bucket.limbs, axis=axis)
+    return array
+
+
+STRUCTURE_LIMB_AXES = StructureBatch(
+    limb_mask=(1,),
+    parents=(1,),
+    traversal_positions=(1,),
+    relations=(1, 2),
+    limb_types=(1,),
+    joint_ranges=(1,),
+    limb_motors=(1,),
+    num_limbs=(),
+)
+"""The limb axes of each field of a [K, L, ...] StructureBatch."""
+
+
+def bucket_structures(structures: StructureBatch, bucket: LimbBucket) -> StructureBatch:
+    """The bucket's tasks of a [K, L, ...] StructureBatch, cut to its limb count: [len(tasks), limbs, ...]."""
+    return StructureBatch(
+        *(
+            bucket_slice(leaf, bucket, axes)
+            for leaf, axes in zip(structures, STRUCTURE_LIMB_AXES, strict=True)
+        )
+    )

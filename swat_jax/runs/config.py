@@ -86,6 +86,8 @@ class TrainConfig:
     """SMP: child slots per limb, at least the most children of any limb; None keeps 4."""
     smp_hidden: int | None = None
     """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
+    limb_buckets: int = 3
+    """Update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
     torso_relative_x: bool = True
     """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
     reference_inorder: bool = False
@@ -132,6 +134,7 @@ class TrainConfig:
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
         _require_positive("--eval-episodes", self.eval_episodes)
+        _require_positive("--limb-buckets", self.limb_buckets)
         if self.smp_hidden is not None:
             _require_positive("--smp-hidden", self.smp_hidden)
         if self.eval_interval < 0:

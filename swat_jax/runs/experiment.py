@@ -12,7 +12,7 @@ import jax
 import numpy as np
 
 from swat_jax.envs.multi_task import MultiTaskEnv
-from swat_jax.morphology import StructureBatch
+from swat_jax.morphology import StructureBatch, limb_buckets
 from swat_jax.networks import (
     LimbNetwork,
     Params,
@@ -65,7 +65,13 @@ class Experiment:
         actor, critic = make_actor_critic(network, env.observation_features)
         devices = jax.devices() if devices is None else devices
         layout = placement(config.seeds, env.num_bodies, config.copies, devices)
-        return cls(config, tasks, env, Learner(actor, critic, config.td3), layout)
+        # A bucket gathers tasks across the task axis: only where that axis is not split over devices.
+        buckets = (
+            limb_buckets([body.num_limbs for body in tasks.bodies], config.limb_buckets)
+            if config.limb_buckets > 1 and not layout.tasks_split
+            else ()
+        )
+        return cls(config, tasks, env, Learner(actor, critic, config.td3, buckets), layout)
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on

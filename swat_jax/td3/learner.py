@@ -2,7 +2,9 @@
 
 Each task's loss is computed with ``vmap`` over the task axis (its own structure slice and batch), padded
 limbs are masked out, the losses are averaged over tasks, and one gradient step updates the shared
-parameters. The critic gives one Q value per limb; every limb's Q is regressed on the task's TD target
+parameters. With limb buckets, tasks of similar size are computed together at their own limb count
+instead of the set's largest (the same losses, fewer FLOPs: padded limbs never change a real limb's
+output). The critic gives one Q value per limb; every limb's Q is regressed on the task's TD target
 
     y = r + discount * (1 - terminated) * min(mean_l Q1'(s', a'), mean_l Q2'(s', a'))
 
@@ -15,13 +17,14 @@ follow with rate ``tau`` after each actor update.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
-from swat_jax.morphology.batch import StructureBatch
+from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, bucket_structures
 from swat_jax.networks.policies import LimbNetwork, Params
 from swat_jax.td3.replay import Transitions
 
@@ -69,6 +72,9 @@ class Learner:
     actor: LimbNetwork
     critic: LimbNetwork
     config: TD3Config
+    buckets: tuple[LimbBucket, ...] = ()
+    """Task groups computed at their own limb count (:func:`~swat_jax.morphology.limb_buckets`); empty:
+    every task at the padded limb count."""
 
     def optimizer(self) -> optax.GradientTransformation:
         return optax.chain(
@@ -109,7 +115,7 @@ class Learner:
         delayed = (state.updates + 1) % self.config.policy_delay == 0
         actor_params, actor_optimizer, actor_loss = jax.lax.cond(
             delayed,
-            self._actor_step,
+            self.actor_step,
             lambda *_: (state.actor_params, state.actor_optimizer, jnp.zeros((), jnp.float32)),
             state.actor_params,
             state.actor_optimizer,
@@ -129,7 +135,7 @@ class Learner:
         )
         return next_state, {"critic_loss": critic_loss, "actor_loss": actor_loss}
 
-    def _actor_step(
+    def actor_step(
         self,
         actor_params: Params,
         actor_optimizer: optax.OptState,
@@ -137,6 +143,8 @@ class Learner:
         batch: Transitions,
         structure: StructureBatch,
     ) -> tuple[Params, optax.OptState, jax.Array]:
+        """The delayed actor step of ``update``: one Adam step on the actor loss; returns the new actor
+        parameters, optimizer state and the loss."""
         loss, grads = jax.value_and_grad(self._actor_loss)(actor_params, critic_params, batch, structure)
         updates, actor_optimizer = self.optimizer().update(grads, actor_optimizer, actor_params)
         return optax.apply_updates(actor_params, updates), actor_optimizer, loss
@@ -150,12 +158,13 @@ class Learner:
         rng: jax.Array,
     ) -> jax.Array:
         keys = jax.random.split(rng, batch.reward.shape[0])
-        per_task = jax.vmap(self._task_critic_loss, in_axes=(None, None, None, 0, 0, 0))
-        return jnp.mean(
-            per_task(
-                critic_params, state.target_actor_params, state.target_critic_params, batch, structure, keys
+        noise = jax.vmap(lambda key: jax.random.normal(key, batch.action.shape[1:]))(keys)
+        per_task = jax.vmap(
+            lambda batch, structure, noise: self._task_critic_loss(
+                critic_params, state.target_actor_params, state.target_critic_params, batch, structure, noise
             )
         )
+        return self._task_mean(per_task, batch, structure, noise)
 
     def _task_critic_loss(
         self,
@@ -164,15 +173,11 @@ class Learner:
         target_critic_params: Params,
         batch: Transitions,
         structure: StructureBatch,
-        rng: jax.Array,
+        noise: jax.Array,
     ) -> jax.Array:
-        """Mean squared TD error over the task's real limbs and batch [B, L]."""
+        """Mean squared TD error over the task's real limbs and batch [B, L]; ``noise`` [B, L] standard normal."""
         mask = structure.limb_mask
-        noise = jnp.clip(
-            self.config.policy_noise * jax.random.normal(rng, batch.action.shape),
-            -self.config.noise_clip,
-            self.config.noise_clip,
-        )
+        noise = jnp.clip(self.config.policy_noise * noise, -self.config.noise_clip, self.config.noise_clip)
         next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
         next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
         target_q1, target_q2 = self.critic.apply(
@@ -193,7 +198,30 @@ class Learner:
             q1, _ = self.critic.apply(critic_params, batch.observation, action, structure)
             return -jnp.mean(_limb_mean(q1, structure.limb_mask))
 
-        return jnp.mean(jax.vmap(task_loss)(batch, structure))
+        return self._task_mean(jax.vmap(task_loss), batch, structure)
+
+    def _task_mean(
+        self,
+        task_losses: Callable[..., jax.Array],
+        batch: Transitions,
+        structure: StructureBatch,
+        *per_limb: jax.Array,
+    ) -> jax.Array:
+        """The mean over tasks of ``task_losses(batch, structure, *per_limb)`` ([T] losses), computed bucket by
+        bucket when there are limb buckets; ``per_limb`` arrays are [T, B, L]."""
+        if not self.buckets:
+            return jnp.mean(task_losses(batch, structure, *per_limb))
+        total = sum(
+            jnp.sum(
+                task_losses(
+                    batch.bucket(bucket),
+                    bucket_structures(structure, bucket),
+                    *(bucket_slice(array, bucket, (2,)) for array in per_limb),
+                )
+            )
+            for bucket in self.buckets
+        )
+        return total / batch.reward.shape[0]
 
 
 def _limb_mean(values: jax.Array, mask: jax.Array) -> jax.Array:

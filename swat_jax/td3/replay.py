@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from swat_jax.morphology.batch import LimbBucket, bucket_slice
+
 GIB = 2**30
 USABLE_FRACTION = 0.8
 """Share of the free memory the buffers may take; the rest is for networks, simulation and XLA."""
@@ -32,6 +34,16 @@ class Transitions:
     """[T, B, L, F] float32, the state the action reached (before any automatic reset)."""
     terminated: jax.Array
     """[T, B] bool; a truncated episode is not terminated, so its TD target bootstraps."""
+
+    def bucket(self, bucket: LimbBucket) -> Transitions:
+        """The bucket's tasks, cut to its limb count: [len(tasks), B, limbs, ...]."""
+        return Transitions(
+            observation=bucket_slice(self.observation, bucket, (2,)),
+            action=bucket_slice(self.action, bucket, (2,)),
+            reward=bucket_slice(self.reward, bucket, ()),
+            next_observation=bucket_slice(self.next_observation, bucket, (2,)),
+            terminated=bucket_slice(self.terminated, bucket, ()),
+        )
 
 
 @struct.dataclass
