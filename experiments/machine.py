@@ -40,6 +40,7 @@ SOFTWARE = (
     "numpy",
     "mujoco",
     "mujoco-mjx",
+    "warp-lang",
 )
 """Distributions whose versions a benchmark reports (those installed)."""
 

@@ -100,7 +100,14 @@ def evaluate(
             f"{error}: the policy of {policy.config.directory()} cannot take it "
             f"({policy.config.structure_fix(error)})"
         ) from error
-    env = MultiTaskEnv(tasks.bodies, episodes, torso_relative_x=policy.config.torso_relative_x)
+    indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
+    env = MultiTaskEnv(
+        tasks.bodies,
+        episodes,
+        torso_relative_x=policy.config.torso_relative_x,
+        physics=policy.config.physics,
+        runs=len(indices),
+    )
     features = int(policy.info["observation_features"])
     if env.observation_features != features:
         raise ValueError(
@@ -108,7 +115,6 @@ def evaluate(
             f"policy was trained on {features} (another family vocabulary); evaluate bodies of the run's "
             "families"
         )
-    indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
     params = jax.tree_util.tree_map(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )

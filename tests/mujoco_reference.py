@@ -37,8 +37,9 @@ def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
     return np.array(rows)
 
 
-def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0) -> dict[str, np.ndarray]:
-    """The same random actions through the MJX environment and through plain ``mujoco.mj_step``.
+def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax") -> dict[str, np.ndarray]:
+    """The same random actions through the MJX environment (on the ``physics`` implementation) and through
+    plain ``mujoco.mj_step``.
 
     Both start from the MJX environment's reset state. Returns per-step max abs differences of qpos
     and qvel [steps], the MJX observations [steps, n, F], rewards and termination flags [steps], and
@@ -48,7 +49,7 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0) -> dict[str, np.nda
 
     from swat_jax.envs import BodyEnv
 
-    env = BodyEnv(name)
+    env = BodyEnv(name, physics=physics)
     actions = np.random.default_rng(seed).uniform(-1, 1, (steps, env.num_limbs))
 
     def rollout(rng, actions):

@@ -24,7 +24,7 @@ import numpy as np
 from flax import struct
 
 from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
-from swat_jax.envs.physics import physics_step
+from swat_jax.envs.physics import Implementation, Simulator
 from swat_jax.envs.quiet_mjx import mjx
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
@@ -71,14 +71,22 @@ class BodyEnv:
         torso_relative_x: subtract the torso's x from every limb's x (the paper's intent, default).
             False reproduces the reference code (BENCHMARK.md quirk 1): the torso reads x = 0 and every
             other limb its absolute world x.
+        physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
+        worlds: "warp" only: the most copies one vmapped call steps, all vmap axes together.
     """
 
-    def __init__(self, morphology: Morphology | str, *, torso_relative_x: bool = True):
+    def __init__(
+        self,
+        morphology: Morphology | str,
+        *,
+        torso_relative_x: bool = True,
+        physics: Implementation = "jax",
+        worlds: int = 1,
+    ):
         self.morphology = morphology if isinstance(morphology, Morphology) else load(morphology)
         self.torso_relative_x = torso_relative_x
         self.mj_model: mujoco.MjModel = compile_model(self.morphology)
-        self.model: mjx.Model = mjx.put_model(self.mj_model)
-        self._physics_step = physics_step(self.mj_model)
+        self.simulator = Simulator(self.mj_model, physics, worlds)
         self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
         self.motor_limbs = _motor_limbs(self.morphology, self.mj_model.nu)
         self.site_ids = np.array(
@@ -88,7 +96,6 @@ class BodyEnv:
             ],
             np.int32,
         )
-        self._initial_data = mjx.make_data(self.model)
 
     @property
     def num_limbs(self) -> int:
@@ -120,19 +127,18 @@ class BodyEnv:
             qvel = jax.random.uniform(
                 velocity_key, (self.mj_model.nv,), minval=-noise.qvel_scale, maxval=noise.qvel_scale
             )
-        dtype = self._initial_data.qpos.dtype
-        return self._initial_data.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
+        initial = self.simulator.initial
+        dtype = initial.qpos.dtype
+        return initial.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
 
     def simulate(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
         """``frame_skip`` physics steps under ``action`` [n]; derived quantities not yet computed."""
         data = data.replace(ctrl=jnp.clip(action[self.motor_limbs], -1.0, 1.0))
-        return jax.lax.fori_loop(
-            0, self.morphology.frame_skip, lambda _, d: self._physics_step(self.model, d), data
-        )
+        return self.simulator.advance(data, self.morphology.frame_skip)
 
     def kinematics(self, data: mjx.Data) -> mjx.Data:
         """Positions, orientations, sites and frame velocities computed from ``data``'s qpos and qvel."""
-        return mjx.com_vel(self.model, mjx.com_pos(self.model, mjx.kinematics(self.model, data)))
+        return self.simulator.derive(data)
 
     def start(self, data: mjx.Data) -> EnvState:
         """The state of a new episode at ``data`` (kinematics computed)."""

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from swat_jax.envs.body import BodyEnv, EnvState
+from swat_jax.envs.physics import Implementation
 from swat_jax.morphology.mjcf import load
 from swat_jax.morphology.types import Morphology
 
@@ -77,6 +78,10 @@ class MultiTaskEnv:
         copies: n, parallel copies of each body.
         max_limbs: L, the padded limb count; defaults to the largest body's.
         torso_relative_x: see :class:`~swat_jax.envs.body.BodyEnv`.
+        physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
+        runs: how many instances of this environment one program vmaps over (seeds); "warp" sizes its
+            contact buffers for ``2 * copies * runs`` simulations per call (a step derives the stepped
+            and the fresh copies together).
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -90,6 +95,8 @@ class MultiTaskEnv:
         *,
         max_limbs: int | None = None,
         torso_relative_x: bool = True,
+        physics: Implementation = "jax",
+        runs: int = 1,
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
@@ -99,7 +106,10 @@ class MultiTaskEnv:
         largest = max(morphologies, key=lambda body: body.num_limbs)
         if max_limbs is not None and max_limbs < largest.num_limbs:
             raise ValueError(f"{largest.name} has {largest.num_limbs} limbs, more than max_limbs={max_limbs}")
-        self.envs = tuple(BodyEnv(body, torso_relative_x=torso_relative_x) for body in morphologies)
+        self.envs = tuple(
+            BodyEnv(body, torso_relative_x=torso_relative_x, physics=physics, worlds=2 * copies * runs)
+            for body in morphologies
+        )
         widths = {env.morphology.name: env.observation_features for env in self.envs}
         if len(set(widths.values())) > 1:
             raise ValueError(
@@ -194,9 +204,16 @@ def _step_and_restart(
 
 
 def _where_done(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState:
-    """Per copy, ``fresh`` where ``done`` [n] else ``stepped``."""
+    """Per copy, ``fresh`` where ``done`` [n] else ``stepped``.
 
-    def select(new: jax.Array, old: jax.Array) -> jax.Array:
-        return jnp.where(done.reshape(done.shape + (1,) * (old.ndim - 1)), new, old)
+    Selected copy by copy (vmapped) with ``mjx.Data.where``, which leaves alone the buffers a Warp state
+    shares across copies (:class:`~swat_jax.envs.physics.Simulator`).
+    """
 
-    return jax.tree_util.tree_map(select, fresh, stepped)
+    def select(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState:
+        others = jax.tree_util.tree_map(
+            lambda new, old: jnp.where(done, new, old), fresh.replace(data=None), stepped.replace(data=None)
+        )
+        return others.replace(data=stepped.data.where(done, fresh.data))
+
+    return jax.vmap(select)(done, fresh, stepped)

@@ -1,4 +1,7 @@
-"""One physics step on MJX, with a Runge-Kutta 4 integrator that compiles a third as long as ``mjx.step``'s.
+"""Physics on MJX: :class:`Simulator` holds one body's model and steps it on MJX's JAX or Warp implementation.
+
+JAX (the default) compiles the whole physics into the XLA program. Its step, with ``integrator="RK4"``,
+is :func:`rk4_step`, which compiles a third as long as ``mjx.step``'s:
 
 ``mjx.step`` with ``integrator="RK4"`` traces ``mjx.forward`` four times (once before the integrator
 and once per unrolled stage), and XLA compile time grows with each copy: 13 s per body on a 2-core CPU.
@@ -6,11 +9,21 @@ and once per unrolled stage), and XLA compile time grows with each copy: 13 s pe
 weights 1/6, 1/3, 1/3, 1/6) as a ``lax.scan`` over the four stages, so ``forward`` is traced once.
 It relies on every joint being a hinge or a slide (qpos integrates linearly), which holds for every
 body :func:`swat_jax.morphology.load` accepts; :func:`physics_step` checks it.
+
+Warp (``physics="warp"``, needs ``pip install -e '.[warp]'``) runs MuJoCo Warp's kernels as foreign
+function calls: XLA compiles a few calls per body instead of the physics, and Warp compiles its kernels
+once per machine, for every body (its kernel cache, ``~/.cache/warp``). Its integrator is Warp's own
+RK4. A Warp state keeps its contacts in buffers that all the simulations of one call share (sized for
+``worlds`` of them), which MJX leaves out of ``vmap``'s batch axes; carried in a state, they would break
+its per-copy array operations (concatenation, selection) and repeat across states. The states this
+class returns hold empty placeholders there instead, and :meth:`Simulator.advance` and
+:meth:`Simulator.derive` put the buffers back for the duration of their call.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +31,10 @@ import mujoco
 import numpy as np
 
 from swat_jax.envs.quiet_mjx import mjx
+
+Implementation = Literal["jax", "warp"]
+IMPLEMENTATIONS: tuple[Implementation, ...] = ("jax", "warp")
+"""MJX implementations a :class:`Simulator` runs on."""
 
 RK4_STAGE_OFFSETS = np.array([0.0, 0.5, 0.5, 1.0])
 """Fraction of dt at which stage i evaluates the derivative, from the previous stage's derivative."""
@@ -74,3 +91,94 @@ def physics_step(mj_model: mujoco.MjModel) -> Callable[[mjx.Model, mjx.Data], mj
     if not np.all(np.isin(mj_model.jnt_type, linear)):
         raise ValueError("rk4_step supports hinge and slide joints only; this model has a free or ball joint")
     return rk4_step
+
+
+class Simulator:
+    """One MuJoCo model on MJX: device model, initial state and the advance / derive functions.
+
+    Args:
+        mj_model: the compiled MuJoCo model.
+        implementation: "jax" (XLA) or "warp" (MuJoCo Warp kernels).
+        worlds: Warp only: the most simulations one call of :meth:`advance` or :meth:`derive` runs, all
+            ``vmap`` axes together (copies x seeds); the shared contact buffer holds, for each of them,
+            as many contacts as MJX's JAX implementation allocates per simulation.
+
+    Raises:
+        ValueError: an unknown implementation, or ``worlds`` < 1.
+        ImportError: "warp" without warp-lang installed.
+    """
+
+    def __init__(self, mj_model: mujoco.MjModel, implementation: Implementation = "jax", worlds: int = 1):
+        if implementation not in IMPLEMENTATIONS:
+            raise ValueError(f"physics must be one of {', '.join(IMPLEMENTATIONS)}, got {implementation!r}")
+        if worlds < 1:
+            raise ValueError(f"worlds must be at least 1, got {worlds}")
+        self.implementation = implementation
+        if implementation == "jax":
+            self.model: mjx.Model = mjx.put_model(mj_model)
+            self.initial: mjx.Data = mjx.make_data(self.model)
+            self._step = physics_step(mj_model)
+            self._buffers: dict[str, jax.Array] = {}
+            return
+        _quiet_warp()
+        per_world = mjx.make_data(mj_model)
+        data = mjx.make_data(
+            mj_model,
+            impl="warp",
+            naconmax=max(1, per_world._impl.contact.dist.shape[0] * worlds),
+            njmax=max(1, per_world._impl.efc_J.shape[0]),
+        )
+        self.model = mjx.put_model(mj_model, impl="warp")
+        self._step = mjx.step
+        self._buffers = {name: getattr(data._impl, name) for name in _shared_warp_buffers(data)}
+        self.initial = self._detach(data)
+
+    def advance(self, data: mjx.Data, steps: int) -> mjx.Data:
+        """``steps`` physics steps from ``data`` (its ctrl applied); derived quantities not recomputed."""
+        data = jax.lax.fori_loop(0, steps, lambda _, d: self._step(self.model, d), self._attach(data))
+        return self._detach(data)
+
+    def derive(self, data: mjx.Data) -> mjx.Data:
+        """Positions, orientations, sites and frame velocities (``cvel``) computed from qpos and qvel.
+
+        Warp has no ``com_vel`` of its own in mujoco-mjx 3.17: there a whole ``forward`` computes them.
+        """
+        if self.implementation == "jax":
+            return mjx.com_vel(self.model, mjx.com_pos(self.model, mjx.kinematics(self.model, data)))
+        return self._detach(mjx.forward(self.model, self._attach(data)))
+
+    def _attach(self, data: mjx.Data) -> mjx.Data:
+        """``data`` with the shared Warp buffers in place of its placeholders (unbatched under vmap)."""
+        if not self._buffers:
+            return data
+        return data.replace(_impl=data._impl.replace(**self._buffers))
+
+    def _detach(self, data: mjx.Data) -> mjx.Data:
+        """``data`` with empty placeholders [0, ...] for the shared Warp buffers."""
+        if not self._buffers:
+            return data
+        empty = {name: jnp.zeros((0, *value.shape[1:]), value.dtype) for name, value in self._buffers.items()}
+        return data.replace(_impl=data._impl.replace(**empty))
+
+
+def _shared_warp_buffers(data: mjx.Data) -> list[str]:
+    """Names of the Warp state's arrays shared by every simulation of a call (no per-world axis)."""
+    from mujoco.mjx.warp import types as warp_types
+
+    batched = warp_types._BATCH_DIM["Data"]
+    return [
+        name
+        for name, value in vars(data._impl).items()
+        if not batched.get(name, True) and isinstance(value, jax.Array | np.ndarray) and np.ndim(value) > 0
+    ]
+
+
+def _quiet_warp() -> None:
+    """Import warp-lang (ImportError naming the fix); keep its greeting and kernel builds off stdout."""
+    try:
+        import warp
+    except ImportError as error:
+        raise ImportError(
+            "physics='warp' needs warp-lang: pip install -e '.[warp]' (or pip install warp-lang==1.18.0)"
+        ) from error
+    warp.config.log_level = warp.LOG_WARNING

@@ -19,6 +19,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal
 
+from swat_jax.envs.physics import Implementation
 from swat_jax.morphology import SETS, get_set
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
 from swat_jax.td3.iteration import IterationConfig
@@ -88,6 +89,8 @@ class TrainConfig:
     """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     limb_buckets: int = 3
     """Update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
+    physics: Implementation = "jax"
+    """MJX implementation: jax (the physics compiled into the XLA program) or warp (MuJoCo Warp kernels called from it: compiles in seconds, needs pip install -e '.[warp]'; README "How fast")."""
     torso_relative_x: bool = True
     """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
     reference_inorder: bool = False

@@ -59,7 +59,13 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
-        env = MultiTaskEnv(tasks.bodies, config.copies, torso_relative_x=config.torso_relative_x)
+        env = MultiTaskEnv(
+            tasks.bodies,
+            config.copies,
+            torso_relative_x=config.torso_relative_x,
+            physics=config.physics,
+            runs=config.seeds,
+        )
         if config.init_from:
             _check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features)
@@ -147,7 +153,11 @@ class Experiment:
         """The jitted deterministic evaluation of actor parameters [S, ...] on the train bodies,
         ``config.eval_episodes`` episodes each (:func:`swat_jax.td3.evaluation.make_evaluation`)."""
         env = MultiTaskEnv(
-            self.tasks.bodies, self.config.eval_episodes, torso_relative_x=self.config.torso_relative_x
+            self.tasks.bodies,
+            self.config.eval_episodes,
+            torso_relative_x=self.config.torso_relative_x,
+            physics=self.config.physics,
+            runs=self.config.seeds,
         )
         return jax.jit(make_evaluation(env, self.tasks.structure, self.learner.actor))
 

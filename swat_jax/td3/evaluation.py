@@ -52,7 +52,8 @@ def make_evaluation(
     def evaluate(params: Params, rng: jax.Array) -> Episodes:
         seeds = jax.tree_util.tree_leaves(params)[0].shape[0]
         start = env.reset(rng)
-        states = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (seeds, *x.shape)), start)
+        # vmap broadcasts the start to every seed and leaves a Warp state's shared buffers unbatched.
+        states = jax.vmap(lambda _: start)(jnp.arange(seeds))
         shape = (seeds, env.num_bodies, env.copies)
         tracks = tuple(
             jnp.zeros((max_steps + 1 if record else 0, body.mj_model.nq)).at[:1].set(data.data.qpos[:1])

@@ -1,0 +1,142 @@
+"""Time from nothing to the first trained iteration, per MJX implementation (``--physics jax`` / ``warp``).
+
+For each physics and each cache state, a fresh process builds a run of the set (``TrainConfig`` of the
+preset), and times what a user waits for before training starts: building the experiment (bodies,
+models), ``init_state`` (networks, replay buffers, environment resets: a compiled program), tracing and
+compiling the training iteration, and its first call (where Warp loads its kernels). Then it times
+``--iterations`` more iterations and reports the steady seconds per iteration, and the process's peak RSS.
+
+Cache states, in this order, each in its own process:
+
+- cold: empty JAX compilation cache and, for Warp, an empty Warp kernel cache (a new machine);
+- warm JAX cache: the JAX cache the cold run filled (a second run of the same command);
+- other set: for Warp, a new JAX cache and the Warp kernel cache the cold run filled, on ``--other-set``
+  (a run of a different set on a machine that has run Warp once: Warp's kernels serve every body).
+
+    python experiments/compile_benchmark.py [--env animal_walkers] [--other-set hopper] [--preset paper]
+        [--physics jax warp] [--iterations 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from machine import cpu_model, host_cores, software_versions
+
+PHASES = ("build", "init_state", "trace", "compile", "first_call")
+"""Seconds to the first trained iteration, in order."""
+
+
+def measure(env: str, preset: str, physics: str, iterations: int) -> dict[str, float]:
+    """Phase seconds, steady seconds per iteration and peak RSS (GiB) of one run, in this process."""
+    import jax
+
+    from swat_jax.runs.config import PRESETS
+    from swat_jax.runs.experiment import Experiment
+
+    config = dataclasses.replace(PRESETS[preset], env=env, physics=physics)
+    seconds = {}
+    start = time.perf_counter()
+    experiment = Experiment.build(config)
+    seconds["build"] = time.perf_counter() - start
+    start = time.perf_counter()
+    state = jax.block_until_ready(experiment.init_state())
+    seconds["init_state"] = time.perf_counter() - start
+    start = time.perf_counter()
+    lowered = experiment.iteration().lower(state)
+    seconds["trace"] = time.perf_counter() - start
+    start = time.perf_counter()
+    iteration = lowered.compile()
+    seconds["compile"] = time.perf_counter() - start
+    start = time.perf_counter()
+    state, _ = jax.block_until_ready(iteration(state))
+    seconds["first_call"] = time.perf_counter() - start
+    start = time.perf_counter()
+    for _ in range(iterations):
+        state, _ = iteration(state)
+    jax.block_until_ready(state)
+    seconds["iteration"] = (time.perf_counter() - start) / iterations
+    seconds["env_steps_per_second"] = (
+        config.steps_per_iteration(experiment.env.num_bodies) / seconds["iteration"]
+    )
+    seconds["peak_rss_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return seconds
+
+
+def run_child(
+    env: str, preset: str, physics: str, iterations: int, jax_cache: Path, warp_cache: Path
+) -> dict:
+    """:func:`measure` in a fresh process with the given cache directories."""
+    environment = dict(os.environ, SWAT_JAX_CACHE_DIR=str(jax_cache), WARP_CACHE_PATH=str(warp_cache))
+    environment.pop("JAX_COMPILATION_CACHE_DIR", None)
+    environment.pop("SWAT_JAX_COMPILATION_CACHE", None)
+    command = [sys.executable, __file__, "--child", env, preset, physics, str(iterations)]
+    completed = subprocess.run(command, env=environment, capture_output=True, text=True, check=False)
+    if completed.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{completed.stderr[-3000:]}")
+    return json.loads(completed.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="animal_walkers", help="environment set (default animal_walkers)")
+    parser.add_argument(
+        "--other-set", default="hopper", help="set of the Warp 'other set' row (default hopper)"
+    )
+    parser.add_argument("--preset", default="paper", help="training preset (default paper)")
+    parser.add_argument(
+        "--physics", nargs="+", default=["jax", "warp"], help="implementations (default both)"
+    )
+    parser.add_argument(
+        "--iterations", type=int, default=2, help="timed iterations after the first (default 2)"
+    )
+    parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        env, preset, physics, iterations = args.child
+        print(json.dumps(measure(env, preset, physics, int(iterations))))
+        return
+
+    rows = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for physics in args.physics:
+            jax_cache, warp_cache = Path(scratch, physics, "jax"), Path(scratch, physics, "warp")
+            cases = [("cold", args.env, jax_cache), ("warm JAX cache", args.env, jax_cache)]
+            if physics == "warp":
+                cases.append(
+                    ("other set, kernels cached", args.other_set, Path(scratch, physics, "jax-other"))
+                )
+            for label, env, cache in cases:
+                result = run_child(env, args.preset, physics, args.iterations, cache, warp_cache)
+                rows.append((physics, label, env, result))
+                total = sum(result[phase] for phase in PHASES)
+                print(f"{physics}, {label}, {env}: {total:.1f} s to the first iteration {result}", flush=True)
+
+    print(f"\nMachine: {cpu_model()}, {host_cores()} cores; {software_versions()}; preset {args.preset}")
+    print(
+        "\n| physics | caches | set | build (s) | init_state (s) | trace (s) | compile (s) | first call (s) "
+        "| to first iteration (s) | s / iteration after | env steps/s | peak RSS (GiB) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for physics, label, env, r in rows:
+        phases = " | ".join(f"{r[phase]:.1f}" for phase in PHASES)
+        total = sum(r[phase] for phase in PHASES)
+        print(
+            f"| {physics} | {label} | {env} | {phases} | {total:.1f} | {r['iteration']:.2f} "
+            f"| {r['env_steps_per_second']:.0f} | {r['peak_rss_gib']:.2f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
