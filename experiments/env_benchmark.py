@@ -21,7 +21,7 @@ state are its own. The throughput runs use the persistent compilation cache as c
 compile column then shows a cache load); ``SWAT_JAX_COMPILATION_CACHE=0`` gives cold compile times.
 
     python experiments/env_benchmark.py [--sets hopper walker animal_walkers cwhh] [--copies 1 16]
-        [--steps 100] [--compile-sets hopper animal_walkers] [--compile-only | --no-compile]
+        [--steps 100] [--physics jax|warp] [--compile-sets hopper animal_walkers] [--compile-only | --no-compile]
 """
 
 from __future__ import annotations
@@ -112,9 +112,11 @@ def make_rollout(env: MultiTaskEnv, steps: int) -> Callable[[MultiTaskState, jax
     return rollout
 
 
-def throughput_worker(set_name: str, copies: int, steps: int, repeats: int) -> dict[str, Any]:
+def throughput_worker(
+    set_name: str, copies: int, steps: int, repeats: int, physics: str = "jax"
+) -> dict[str, Any]:
     """MJX steps per second, trace and compile seconds of the scanned step, and peak memory."""
-    env = MultiTaskEnv(train_bodies(set_name), copies)
+    env = MultiTaskEnv(train_bodies(set_name), copies, physics=physics)
     key = jax.random.key(0)
     state = jax.block_until_ready(jax.jit(env.reset)(key))
     start = time.perf_counter()
@@ -138,10 +140,10 @@ def throughput_worker(set_name: str, copies: int, steps: int, repeats: int) -> d
     }
 
 
-def compile_worker(set_name: str, copies: int) -> dict[str, Any]:
+def compile_worker(set_name: str, copies: int, physics: str = "jax") -> dict[str, Any]:
     """Seconds to build the environment, trace and compile ``jax.jit(env.step)`` (abstract arguments)."""
     start = time.perf_counter()
-    env = MultiTaskEnv(train_bodies(set_name), copies)
+    env = MultiTaskEnv(train_bodies(set_name), copies, physics=physics)
     built = time.perf_counter()
     state = jax.eval_shape(env.reset, jax.random.key(0))
     action = jax.ShapeDtypeStruct((env.num_bodies, copies, env.max_limbs), jnp.float32)
@@ -187,9 +189,18 @@ def run_worker(spec: dict[str, Any], workers: dict[str, Worker] = WORKERS) -> No
 # --- the orchestrating process (never touches the JAX backend) -----------------------------------------
 
 
-def throughput_spec(set_name: str, copies: int, steps: int, repeats: int) -> dict[str, Any]:
+def throughput_spec(
+    set_name: str, copies: int, steps: int, repeats: int, physics: str = "jax"
+) -> dict[str, Any]:
     """The worker spec of one :func:`throughput_worker` measurement."""
-    return {"kind": "throughput", "set_name": set_name, "copies": copies, "steps": steps, "repeats": repeats}
+    return {
+        "kind": "throughput",
+        "set_name": set_name,
+        "copies": copies,
+        "steps": steps,
+        "repeats": repeats,
+        "physics": physics,
+    }
 
 
 class WorkerError(RuntimeError):
@@ -330,7 +341,7 @@ def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: 
         c_speed = c_steps_per_second(train_bodies(set_name), args.c_steps)
 
         def measure(count: int, set_name: str = set_name) -> dict[str, Any]:
-            return in_subprocess(throughput_spec(set_name, count, args.steps, args.repeats))
+            return in_subprocess(throughput_spec(set_name, count, args.steps, args.repeats, args.physics))
 
         set_copies = copies_for_set(set_name, copies, args.largest_only_above)
         rows, _ = sweep_copies(set_name, set_copies, measure, args.min_gain, started)
@@ -367,7 +378,12 @@ def compile_table(args: argparse.Namespace, started: float) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for set_name in args.compile_sets:
-        spec = {"kind": "compile", "set_name": set_name, "copies": args.compile_copies}
+        spec = {
+            "kind": "compile",
+            "set_name": set_name,
+            "copies": args.compile_copies,
+            "physics": args.physics,
+        }
         with tempfile.TemporaryDirectory(prefix="swat_jax_cache_") as cache_dir:
             environment = compile_environment(cache_dir)
             progress(f"{display_name(set_name)}: cold compile of the step (empty cache)", started)
@@ -402,6 +418,9 @@ def parse_arguments() -> argparse.Namespace:
         "minutes per count); 0 runs every count for every set",
     )
     parser.add_argument("--steps", type=int, default=100, help="env steps per timed call (one lax.scan)")
+    parser.add_argument(
+        "--physics", choices=("jax", "warp"), default="jax", help="MJX implementation (default jax)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="timed calls per configuration (median)")
     parser.add_argument(
         "--min-gain",
