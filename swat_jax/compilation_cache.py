@@ -3,6 +3,12 @@
 MJX programs take tens of seconds to compile; the cache makes the second run of any command start
 in seconds. The cache lives in ``$SWAT_JAX_CACHE_DIR`` (default ``~/.cache/swat_jax/jax``, per user);
 ``SWAT_JAX_COMPILATION_CACHE=0`` turns it off. An explicit ``JAX_COMPILATION_CACHE_DIR`` wins.
+
+The cache is keyed by the lowered program, and JAX's in-memory caches of traced functions change how a
+program lowers after others in the same process (the training iteration, lowered a second time from a
+new ``Experiment``, gains a duplicated helper function): :func:`lower_afresh` lowers the large
+programs as a fresh process would, so a second run in one process (tests, notebooks, a resume
+on another device layout) finds the first run's programs in the cache.
 """
 
 from __future__ import annotations
@@ -10,6 +16,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 DISABLE_VARIABLE = "SWAT_JAX_COMPILATION_CACHE"
 DIRECTORY_VARIABLE = "SWAT_JAX_CACHE_DIR"
@@ -44,3 +51,14 @@ def enable_compilation_cache() -> Path | None:
         else:
             os.environ[name.upper()] = str(value)
     return directory
+
+
+def lower_afresh(function: Any, *args: Any) -> Any:
+    """``function.lower(*args)`` (``function`` a ``jax.jit`` result) after clearing JAX's in-memory trace and
+    lowering caches: the ``jax.stages.Lowered`` program, and so its persistent-cache key, is the one a fresh
+    process lowers. Callers compile it and hold the result (jitted functions not held are traced again on
+    their next call)."""
+    import jax
+
+    jax.clear_caches()
+    return function.lower(*args)

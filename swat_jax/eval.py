@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from swat_jax.cli import positive_int, run_command
+from swat_jax.compilation_cache import lower_afresh
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import MorphologyError, get_set
 from swat_jax.networks import StructureMismatch, task_set
@@ -118,8 +119,10 @@ def evaluate(
     params = jax.tree_util.tree_map(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )
+    key = jax.random.PRNGKey(seed)
     evaluation = jax.jit(make_evaluation(env, tasks.structure, policy.actor, record=record))
-    result = jax.device_get(evaluation(params, jax.random.PRNGKey(seed)))
+    evaluation = lower_afresh(evaluation, params, key).compile()
+    result = jax.device_get(evaluation(params, key))
     seeds = tuple(policy.seeds[index] for index in indices)
     evaluations = []
     for k, name in enumerate(env.body_names):

@@ -17,9 +17,10 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from conftest import tiny_train_config, train_flags
+from conftest import MORPHOLOGIES, tiny_train_config, train_flags
 from tensorboardX.proto import event_pb2
 
+from swat_jax.compilation_cache import lower_afresh
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
@@ -180,6 +181,25 @@ def test_a_resumed_run_compiles_the_fresh_runs_program(trained_run):
     fresh = experiment.init_state()
     iteration = experiment.iteration()
     assert iteration.lower(restored).as_text() == iteration.lower(fresh).as_text()
+
+
+def test_a_second_run_in_one_process_lowers_the_first_runs_iteration(tmp_path):
+    """Two runs of one config in one process (each builds its Experiment, initialises its state and lowers
+    its iteration) lower the same program, so the second hits the first's persistent-cache entry. With
+    plain ``lower``, two bodies' iteration gains a duplicated helper function the second time (JAX's
+    in-memory trace caches)."""
+    folder = tmp_path / "two_hoppers"
+    folder.mkdir()
+    for body in ("hopper_3", "hopper_4"):
+        shutil.copy(MORPHOLOGIES / f"{body}.xml", folder)
+    shutil.copytree(MORPHOLOGIES / "assets", folder / "assets")
+    config = tiny_train_config(tmp_path / "run", folder)
+    texts = []
+    for _ in range(2):
+        experiment = Experiment.build(config)
+        state = experiment.init_state()
+        texts.append(lower_afresh(experiment.iteration(), state).as_text())
+    assert texts[0] == texts[1]
 
 
 def test_a_stop_request_is_honoured_within_one_iteration(trained_run, hopper_folder, tmp_path):

@@ -11,6 +11,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from swat_jax.compilation_cache import lower_afresh
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch, limb_buckets
 from swat_jax.networks import (
@@ -90,7 +91,9 @@ class Experiment:
         device computes its own shards.
         """
         shardings = self.placement.state_shardings(self.state_shapes())
-        state = jax.jit(self._initial_state, out_shardings=shardings)(self._seed_keys())
+        keys = self._seed_keys()
+        initial_state = jax.jit(self._initial_state, out_shardings=shardings)
+        state = lower_afresh(initial_state, keys).compile()(keys)
         if self.config.init_from:
             state = state.replace(learner=self._transferred(state.learner))
         return self._placed(state)
