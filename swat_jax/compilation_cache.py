@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -62,3 +63,17 @@ def lower_afresh(function: Any, *args: Any) -> Any:
 
     jax.clear_caches()
     return function.lower(*args)
+
+
+def compiled_at_first_call(function: Any) -> Callable[..., Any]:
+    """``function`` (a ``jax.jit`` result) lowered with :func:`lower_afresh` and compiled when first called,
+    for the arguments of that call; later calls run that program."""
+    compiled = None
+
+    def call(*args: Any) -> Any:
+        nonlocal compiled
+        if compiled is None:
+            compiled = lower_afresh(function, *args).compile()
+        return compiled(*args)
+
+    return call

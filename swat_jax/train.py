@@ -34,7 +34,7 @@ import tyro
 from tqdm import tqdm
 
 from swat_jax.cli import ERROR_STATUS
-from swat_jax.compilation_cache import lower_afresh
+from swat_jax.compilation_cache import compiled_at_first_call, lower_afresh
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
@@ -243,16 +243,10 @@ def _loop(
     window = MetricsWindow(config.seeds, env.num_bodies, info.get("metrics_window"))
 
     start = time.perf_counter()
-    print(
-        "compiling the training iteration and the evaluation (minutes on CPU the first time; cached afterwards)..."
-    )
+    print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
     iteration = lower_afresh(experiment.iteration(), state).compile()
-    evaluation = (
-        lower_afresh(experiment.evaluation(), state.learner.actor_params, jax.random.PRNGKey(0)).compile()
-        if config.eval_interval
-        else None
-    )
     print(f"compiled in {time.perf_counter() - start:.1f} s")
+    evaluation = compiled_at_first_call(experiment.evaluation()) if config.eval_interval else None
 
     saved = done
 
