@@ -14,7 +14,7 @@ install:  ## install swat_jax (editable) with the test and lint tools
 	$(PYTHON) -m pip install -e ".[dev]"
 
 test:  ## run the whole test suite (what CI runs)
-	$(PYTHON) -m pytest -q -n 2
+	$(PYTHON) -m pytest -q -n 2 --dist loadgroup
 
 lint:  ## static checks
 	$(PYTHON) -m ruff check swat_jax tests experiments scripts

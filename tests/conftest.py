@@ -1,5 +1,7 @@
-"""Test-wide setup: the tests' own helpers are importable; a tiny training run shared by the command tests."""
+"""Test-wide setup: the tests' own helpers are importable; XLA compiles without backend optimisations; a tiny
+training run shared by the command tests."""
 
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -7,6 +9,18 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+
+TEST_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+"""Compile time dominates the suite. With LLVM's optimisations and XLA's new CPU fusion emitters off, XLA
+compiles the tests' programs (the programs users run, lowered the same way) in about half the CPU time,
+and runs them 2-3x slower, which the tests' few steps do not feel (BENCHMARKS.md, "The test suite").
+Set before JAX starts its backend; the tests' subprocesses inherit it."""
+USER_XLA_FLAGS = os.environ.get("XLA_FLAGS", "").replace(TEST_XLA_FLAGS, "").strip()
+"""The XLA flags the suite was started with, for the tests that run with XLA's defaults (test_learning.py)."""
+os.environ["XLA_FLAGS"] = f"{USER_XLA_FLAGS} {TEST_XLA_FLAGS}".strip()
+XLA_DEFAULTS = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True}
+"""``jax.jit(..., compiler_options=XLA_DEFAULTS)`` undoes TEST_XLA_FLAGS for one program: for the tests whose
+programs run for seconds (thousands of updates), which run 3x faster compiled with XLA's defaults."""
 
 
 MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"

@@ -73,7 +73,8 @@ def main(folder: Path, out: Path) -> None:
 
     sharded, unsharded = config(out, folder, "sharded", 600), config(out, folder, "unsharded", 600)
     meshes += [trained(sharded, 1, resume=True), trained(unsharded, 4, resume=True)]
-    after_resume = largest_differences(final_state(sharded), final_state(unsharded))
+    resumed = [final_state(sharded), final_state(unsharded)]
+    after_resume = largest_differences(*resumed)
 
     policy = load_policy(sharded.directory())
     evaluation = evaluate(policy, policy.info["bodies"], episodes=2)
@@ -88,7 +89,7 @@ def main(folder: Path, out: Path) -> None:
                 "meshes": meshes,
                 "after_training": after_training,
                 "after_resume": after_resume,
-                "env_steps": [final_state(run).env_steps.item() for run in (sharded, unsharded)],
+                "env_steps": [state.env_steps.item() for state in resumed],
                 "eval_returns": [result.returns.tolist() for result in evaluation],
                 "actions_shape": list(actions.shape),
                 "actions_finite": bool(np.isfinite(actions).all()),

@@ -51,7 +51,7 @@ def test_help_starts_with_its_usage_line(help_outputs, argv):
 def test_json_outputs_parse(trained_run):
     show = command("swat_jax.morphology", "show", "walker_3_main", "--json")
     evaluation = command(
-        "swat_jax.eval", str(trained_run), "--episodes", "3", "--bodies", "hopper_3", "--json"
+        "swat_jax.eval", str(trained_run), "--episodes", "2", "--bodies", "hopper_3", "hopper_4", "--json"
     )
     assert json.loads(finished(show))["limbs"] == ["torso", "left1", "right1"]
-    assert set(json.loads(finished(evaluation))["bodies"]) == {"hopper_3"}
+    assert set(json.loads(finished(evaluation))["bodies"]) == {"hopper_3", "hopper_4"}

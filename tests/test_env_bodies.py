@@ -1,7 +1,8 @@
 """Every benchmark body resets and steps under jit, and its float32 MJX rollout tracks MuJoCo C.
 
-One compiled rollout (reset + 10 steps in a ``lax.scan``) per body; about 10 s of compile each on a
-2-core CPU, so the module is marked slow (it still runs in CI).
+One compiled rollout (reset + 10 steps in a ``lax.scan``) per body; 5-7 s of compile each on a 2-core
+CPU with the suite's XLA flags (conftest.py; 11-12 s with XLA's defaults), so the module is marked slow
+(it still runs in CI).
 """
 
 from __future__ import annotations

@@ -1,18 +1,26 @@
-"""TD3 learns: a small policy trained for a few minutes on CPU beats the random policy on hopper_3."""
+"""TD3 learns: a small policy trained for a few minutes on CPU beats the random policy on hopper_3.
+
+The run goes through the user's commands (``python -m swat_jax.train``, then ``swat_jax.eval --json``) in
+subprocesses compiled with XLA's default optimisations, as a user's run is: whether a short run learns
+depends on every rounding, and the suite's cheaper compilation (conftest.py) rounds differently.
+"""
 
 from __future__ import annotations
+
+import functools
+import json
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
 import pytest
-from conftest import tiny_train_config
+from conftest import USER_XLA_FLAGS, XLA_DEFAULTS, tiny_train_config, train_flags
+from subprocesses import python_path_environment
 
 from swat_jax.envs.body import BodyEnv
-from swat_jax.eval import evaluate
-from swat_jax.runs.experiment import load_policy
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
-from swat_jax.train import train
 
 EPISODES = 10
 RANDOM_RETURN_MEASURED = 78.3
@@ -32,7 +40,7 @@ def random_policy_returns(env: BodyEnv, episodes: int, seed: int) -> jax.Array:
         returns = jnp.where(states.done & ~finished, states.episode_return, returns)
         return (states, returns, finished | states.done), None
 
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=XLA_DEFAULTS)
     def run(key):
         reset_key, action_key = jax.random.split(key)
         states = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
@@ -62,8 +70,15 @@ def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
         checkpoint_interval=16_000,
         eval_interval=0,
     )
-    train(config, progress=False)
-    [learned] = evaluate(load_policy(config.directory()), ["hopper_3"], episodes=EPISODES)
-    learned = learned.summary()
+    environment = python_path_environment(XLA_FLAGS=USER_XLA_FLAGS)
+    for command in (
+        ["swat_jax.train", *train_flags(config), "--no-progress"],
+        ["swat_jax.eval", config.run_dir, "--episodes", str(EPISODES), "--bodies", "hopper_3", "--json"],
+    ):
+        completed = subprocess.run(
+            [sys.executable, "-m", *command], capture_output=True, text=True, env=environment, check=False
+        )
+        assert completed.returncode == 0, completed.stderr[-3000:]
+    learned = json.loads(completed.stdout)["bodies"]["hopper_3"]
     assert learned["return_mean"] > 3 * random_return, (learned, random_return, LEARNED_RETURN_MEASURED)
     assert learned["length_mean"] > 150, "random hoppers fall after about 80 steps"

@@ -6,6 +6,7 @@ before JAX starts, so the run happens in a subprocess (tests/sharded_twins.py).
 """
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -37,6 +38,11 @@ def test_mesh_rule_fills_devices_with_seeds_then_tasks(seeds, tasks, copies, dev
     assert mesh_shape(seeds, tasks, copies, devices) == shape
 
 
+TWINS = pytest.mark.xdist_group("sharded_twins")
+"""On the tests that read the sharded twins, so that one worker runs them and the 4-minute subprocess once
+(``make test`` distributes with ``--dist loadgroup``)."""
+
+
 @pytest.fixture(scope="module")
 def sharded_twins(tmp_path_factory):
     folder = tmp_path_factory.mktemp("two_hoppers")
@@ -48,13 +54,16 @@ def sharded_twins(tmp_path_factory):
         [sys.executable, str(TESTS / "sharded_twins.py"), str(folder), str(out)],
         capture_output=True,
         text=True,
-        env=python_path_environment(TESTS, XLA_FLAGS="--xla_force_host_platform_device_count=4"),
+        env=python_path_environment(
+            TESTS, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=4"
+        ),
         timeout=1200,
     )
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
+@TWINS
 def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
     assert sharded_twins["devices"] == 4
     sharded, unsharded = sharded_twins["meshes"][:2]
@@ -65,6 +74,7 @@ def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
     assert sharded_twins["after_training"]["relative"] < 1e-3, "float32 sums in another order, nothing more"
 
 
+@TWINS
 def test_checkpoints_resume_on_the_other_layout(sharded_twins):
     assert sharded_twins["meshes"][2:] == [
         "mesh of 1 cpu device: seeds 1 x tasks 1",
@@ -75,6 +85,7 @@ def test_checkpoints_resume_on_the_other_layout(sharded_twins):
     assert sharded_twins["after_resume"]["relative"] < 1e-3
 
 
+@TWINS
 def test_a_sharded_run_evaluates_and_exports(sharded_twins):
     returns = sharded_twins["eval_returns"]
     assert len(returns) == 2 and all(len(seed_returns) == 2 for seed_returns in returns), "2 bodies x 2 seeds"
