@@ -10,17 +10,57 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-TEST_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
-"""Compile time dominates the suite. With LLVM's optimisations and XLA's new CPU fusion emitters off, XLA
-compiles the tests' programs (the programs users run, lowered the same way) in about half the CPU time,
-and runs them 2-3x slower, which the tests' few steps do not feel (BENCHMARKS.md, "The test suite").
-Set before JAX starts its backend; the tests' subprocesses inherit it."""
+TEST_XLA_FLAGS = (
+    "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+    " --xla_disable_hlo_passes=while-loop-invariant-code-motion"
+)
+"""Compile time dominates the suite. With LLVM's optimisations, XLA's new CPU fusion emitters and its
+loop-invariant code motion off (the last is a third of an MJX program's HLO passes), XLA compiles the
+tests' programs (the programs users run, lowered the same way) in about a third of the CPU time, and runs
+them 2-3x slower, which the tests' few steps do not feel (BENCHMARKS.md, "The test suite"). Set before
+JAX starts its backend; the tests' subprocesses inherit it."""
 USER_XLA_FLAGS = os.environ.get("XLA_FLAGS", "").replace(TEST_XLA_FLAGS, "").strip()
 """The XLA flags the suite was started with, for the tests that run with XLA's defaults (test_learning.py)."""
 os.environ["XLA_FLAGS"] = f"{USER_XLA_FLAGS} {TEST_XLA_FLAGS}".strip()
-XLA_DEFAULTS = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True}
+XLA_DEFAULTS = {
+    "xla_backend_optimization_level": 3,
+    "xla_cpu_use_fusion_emitters": True,
+    "xla_disable_hlo_passes": "",
+}
 """``jax.jit(..., compiler_options=XLA_DEFAULTS)`` undoes TEST_XLA_FLAGS for one program: for the tests whose
 programs run for seconds (thousands of updates), which run 3x faster compiled with XLA's defaults."""
+
+
+WORKER_GROUPS = {
+    **dict.fromkeys(
+        ("test_train", "test_eval", "test_cli_output", "test_export", "test_plot", "test_run_errors"),
+        "tiny runs",
+    ),
+    "test_sharding": "sharded twins",
+    "test_td3_iteration": "test_td3_iteration",
+    "test_render": "test_render",
+    "test_networks": "test_networks",
+}
+"""Modules whose tests run on one xdist worker under ``make test`` (``--dist loadgroup``), so that the
+fixtures they share are built once: the tiny runs (``trained_run``, ``trained_swat_run``: a training
+each), the sharded twins (a 4-minute subprocess) and the module-scoped fixtures. Every other test is
+scheduled on its own. (pytest-xdist 3.8's ``xdist_group`` mark groups nothing under pytest 9.2: it renames
+node ids through an attribute pytest 9 no longer reads, so the grouping is done here.)"""
+
+
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup`` schedules by :data:`WORKER_GROUPS`; largest groups first."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class WorkerGroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = Path(nodeid.split("::", 1)[0]).stem
+            return WORKER_GROUPS.get(module, nodeid)
+
+    return WorkerGroupScheduling(config, log)
 
 
 MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"

@@ -38,13 +38,10 @@ def test_mesh_rule_fills_devices_with_seeds_then_tasks(seeds, tasks, copies, dev
     assert mesh_shape(seeds, tasks, copies, devices) == shape
 
 
-TWINS = pytest.mark.xdist_group("sharded_twins")
-"""On the tests that read the sharded twins, so that one worker runs them and the 4-minute subprocess once
-(``make test`` distributes with ``--dist loadgroup``)."""
-
-
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def sharded_twins(tmp_path_factory):
+    """Session-scoped (its tests run on one worker, conftest.WORKER_GROUPS): a worker runs other modules' tests
+    between them, which would end a module-scoped fixture and run the subprocess again."""
     folder = tmp_path_factory.mktemp("two_hoppers")
     for body in ("hopper_3", "hopper_4"):
         shutil.copy(MORPHOLOGIES / f"{body}.xml", folder)
@@ -63,7 +60,6 @@ def sharded_twins(tmp_path_factory):
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
-@TWINS
 def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
     assert sharded_twins["devices"] == 4
     sharded, unsharded = sharded_twins["meshes"][:2]
@@ -74,7 +70,6 @@ def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
     assert sharded_twins["after_training"]["relative"] < 1e-3, "float32 sums in another order, nothing more"
 
 
-@TWINS
 def test_checkpoints_resume_on_the_other_layout(sharded_twins):
     assert sharded_twins["meshes"][2:] == [
         "mesh of 1 cpu device: seeds 1 x tasks 1",
@@ -85,7 +80,6 @@ def test_checkpoints_resume_on_the_other_layout(sharded_twins):
     assert sharded_twins["after_resume"]["relative"] < 1e-3
 
 
-@TWINS
 def test_a_sharded_run_evaluates_and_exports(sharded_twins):
     returns = sharded_twins["eval_returns"]
     assert len(returns) == 2 and all(len(seed_returns) == 2 for seed_returns in returns), "2 bodies x 2 seeds"

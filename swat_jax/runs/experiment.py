@@ -4,6 +4,7 @@ trained policy read back from a run directory (for ``swat_jax.eval`` and ``swat_
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -90,7 +91,7 @@ class Experiment:
         Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies); each
         device computes its own shards.
         """
-        shardings = self.placement.state_shardings(self.state_shapes())
+        shardings = self.placement.state_shardings(self.state_shapes)
         keys = self._seed_keys()
         initial_state = jax.jit(self._initial_state, out_shardings=shardings)
         state = lower_afresh(initial_state, keys).compile()(keys)
@@ -118,12 +119,14 @@ class Experiment:
         """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one
         (whatever mesh wrote it), and its info (CheckpointError if it is missing, unreadable or does not
         match)."""
-        shapes = self.state_shapes()
+        shapes = self.state_shapes
         state, info = checkpoints.restore(shapes, self.placement.state_shardings(shapes))
         return self._placed(state), info
 
+    @functools.cached_property
     def state_shapes(self) -> TrainState:
-        """The shapes and dtypes of :meth:`init_state`, without allocating anything."""
+        """The shapes and dtypes of :meth:`init_state`, without allocating anything (traced once per
+        Experiment: a second of tracing MJX's reset)."""
         return jax.eval_shape(self._initial_state, self._seed_keys())
 
     def _placed(self, state: TrainState) -> TrainState:
@@ -144,7 +147,7 @@ class Experiment:
     def iteration(self) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
         """The jitted training iteration of every seed, partitioned over the mesh; it consumes (donates) its
         input state and returns the state placed as it came."""
-        shardings = self.placement.state_shardings(self.state_shapes())
+        shardings = self.placement.state_shardings(self.state_shapes)
         return jax.jit(
             make_seeded_train_iteration(self.env, self.tasks.structure, self.learner, self.config.iteration),
             in_shardings=(shardings,),
