@@ -90,3 +90,22 @@ def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k(single_se
     np.testing.assert_allclose(metrics["critic_loss"][1], alone_metrics["critic_loss"], rtol=1e-4)
     losses = np.asarray(metrics["critic_loss"][:, -1])
     assert len(set(losses.tolist())) == 3, "every seed is its own run"
+
+
+def test_a_one_seed_run_is_the_plain_iteration_with_a_seed_axis(single_seed_run):
+    """One seed skips vmap (make_seeded_train_iteration): the plain iteration's run, to float32 rounding (the
+    two programs compile separately; under the suite's load they differed by 6e-11 after 3 iterations)."""
+    *_, alone, alone_metrics = single_seed_run
+    env, learner = tiny_learner()
+    seeded = jax.jit(make_seeded_train_iteration(env, STRUCTURE, learner, CONFIG))
+    state = jax.jit(lambda keys: init_seeded_train_state(env, learner, CONFIG, keys))(seed_keys(6, 1))
+    for _ in range(3):
+        state, metrics = seeded(state)
+    assert state.env_steps.shape == () and state.rng.shape[0] == 1
+    for a, b in zip(
+        jax.tree_util.tree_leaves(state.learner), jax.tree_util.tree_leaves(alone.learner), strict=True
+    ):
+        one = a[0] if a.shape != b.shape else a  # the step counter has no seed axis
+        np.testing.assert_allclose(one, b, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(state.env.observation[0], alone.env.observation, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(metrics["critic_loss"][0], alone_metrics["critic_loss"], rtol=1e-5)
