@@ -59,10 +59,17 @@ def lower_afresh(function: Any, *args: Any) -> Any:
     lowering caches: the ``jax.stages.Lowered`` program, and so its persistent-cache key, is the one a fresh
     process lowers. Callers compile it and hold the result (jitted functions not held are traced again on
     their next call)."""
+    return lower_built_afresh(lambda: function, *args)
+
+
+def lower_built_afresh(build: Callable[[], Any], *args: Any) -> Any:
+    """:func:`lower_afresh` of the ``jax.jit`` result ``build()``, built after the caches are cleared: a
+    build that traces the same function on the way (``jax.eval_shape`` for its output shardings) leaves
+    that trace in the cache for the lowering, so the function is traced once."""
     import jax
 
     jax.clear_caches()
-    return function.lower(*args)
+    return build().lower(*args)
 
 
 def compiled_at_first_call(function: Any) -> Callable[..., Any]:

@@ -69,6 +69,7 @@ def test_iteration_traces_once_collects_inserts_and_learns(single_seed_run):
 
 
 def test_seed_k_of_a_multi_seed_run_is_the_single_seed_run_with_seed_k(single_seed_run):
+    """The seeds' environments step as runs of one state, their copies folded into one physics batch."""
     *_, alone, alone_metrics = single_seed_run
     env, learner = tiny_learner()
     seeded = jax.jit(make_seeded_train_iteration(env, STRUCTURE, learner, CONFIG))

@@ -9,11 +9,18 @@ the task set's (:func:`swat_jax.networks.task_set`), not the environment's.
 Finished copies (terminated, truncated, or unstable) start a new episode in the same step. The step
 returns the observation reached *before* that reset, for the replay buffer, and the state holds the
 observation after it, for acting.
+
+Several independent runs (seeds) step together as a leading run axis [R] on every array of the state:
+each run splits its own keys, and the physics sees the runs' copies folded into one batch of R x n.
+Folding, not an outer ``vmap``, is what keeps tracing cheap: ``vmap`` over a function that already vmaps
+MJX's loops batches every loop body once more (a second pass over the whole physics per run axis).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -34,17 +41,20 @@ class EpisodeStats:
     count: jax.Array
 
     @classmethod
-    def zeros(cls, num_bodies: int) -> EpisodeStats:
+    def zeros(cls, num_bodies: int, runs: tuple[int, ...] = ()) -> EpisodeStats:
+        """Zero sums [*runs, K]."""
+        shape = (*runs, num_bodies)
         return cls(
-            return_sum=jnp.zeros(num_bodies, jnp.float32),
-            length_sum=jnp.zeros(num_bodies, jnp.float32),
-            count=jnp.zeros(num_bodies, jnp.int32),
+            return_sum=jnp.zeros(shape, jnp.float32),
+            length_sum=jnp.zeros(shape, jnp.float32),
+            count=jnp.zeros(shape, jnp.int32),
         )
 
 
 @struct.dataclass
 class MultiTaskState:
-    """All copies of all bodies; K bodies, n copies, L = max_limbs, F features."""
+    """All copies of all bodies; K bodies, n copies, L = max_limbs, F features. With runs, every array has
+    a leading run axis [R] before the shapes below."""
 
     bodies: tuple[EnvState, ...]
     """K per-body states, each with a leading copy axis [n]."""
@@ -53,12 +63,18 @@ class MultiTaskState:
     rng: jax.Array
     """Key for the reset noise of the next automatic resets."""
     episodes: EpisodeStats
-    """Finished-episode sums per body, for logging; clear with ``state.replace(episodes=...)``."""
+    """Finished-episode sums per body [K], for logging; clear with ``state.replace(episodes=...)``."""
+
+    @property
+    def runs(self) -> tuple[int, ...]:
+        """The leading run axes: () for one run, (R,) for R runs stepped together."""
+        return self.observation.shape[:-4]
 
 
 @struct.dataclass
 class StepResult:
-    """What one step of every copy produced, for the replay buffer; [K, n] unless stated."""
+    """What one step of every copy produced, for the replay buffer; [K, n] unless stated (after the run
+    axes of the state, if any)."""
 
     next_observation: jax.Array
     """[K, n, L, F] observation reached by the step, before any automatic reset."""
@@ -79,9 +95,9 @@ class MultiTaskEnv:
         max_limbs: L, the padded limb count; defaults to the largest body's.
         torso_relative_x: see :class:`~swat_jax.envs.body.BodyEnv`.
         physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
-        runs: how many instances of this environment one program vmaps over (seeds); "warp" sizes its
-            contact buffers for ``2 * copies * runs`` simulations per call (a step derives the stepped
-            and the fresh copies together).
+        runs: how many instances of this environment one program steps (seeds: a leading run axis of the
+            state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
+            per call (a step derives the stepped and the fresh copies together).
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -130,71 +146,123 @@ class MultiTaskEnv:
         return tuple(env.morphology.name for env in self.envs)
 
     def reset(self, rng: jax.Array) -> MultiTaskState:
-        """Start an episode in every copy of every body."""
-        rng, *keys = jax.random.split(rng, self.num_bodies + 1)
+        """Start an episode in every copy of every body; a key array ``rng`` [*R] starts R runs, each from
+        its key."""
+        runs = rng.shape if jax.dtypes.issubdtype(rng.dtype, jax.dtypes.prng_key) else rng.shape[:-1]
+        rng, *keys = self._split(rng, runs)
         bodies = tuple(
-            jax.vmap(env.reset)(jax.random.split(key, self.copies))
+            _unfolded(
+                jax.vmap(env.reset)(_folded(self._copy_keys(key, runs), runs, self.copies)), runs, self.copies
+            )
             for env, key in zip(self.envs, keys, strict=True)
         )
         return MultiTaskState(
             bodies=bodies,
-            observation=self._padded_observation(bodies),
+            observation=self._padded_observation(bodies, runs),
             rng=rng,
-            episodes=EpisodeStats.zeros(self.num_bodies),
+            episodes=EpisodeStats.zeros(self.num_bodies, runs),
         )
 
     def step(self, state: MultiTaskState, action: jax.Array) -> tuple[MultiTaskState, StepResult]:
-        """Apply ``action`` [K, n, L] (padded limbs ignored) to every copy; reset finished copies."""
-        rng, *keys = jax.random.split(state.rng, self.num_bodies + 1)
+        """Apply ``action`` [*R, K, n, L] (padded limbs ignored) to every copy; reset finished copies."""
+        runs = state.runs
+        rng, *keys = self._split(state.rng, runs)
         stepped, continued = [], []
-        for env, body_state, body_action, key in zip(self.envs, state.bodies, action, keys, strict=True):
-            after_step, fresh = _step_and_restart(env, body_state, body_action[:, : env.num_limbs], key)
-            stepped.append(after_step)
-            continued.append(_where_done(after_step.done, fresh, after_step))
-        finished = jnp.stack([body.done for body in stepped])
+        for k, (env, body_state, key) in enumerate(zip(self.envs, state.bodies, keys, strict=True)):
+            after_step, fresh = _step_and_restart(
+                env,
+                _folded(body_state, runs, self.copies),
+                _folded(action[..., k, :, : env.num_limbs], runs, self.copies),
+                _folded(self._copy_keys(key, runs), runs, self.copies),
+            )
+            stepped.append(_unfolded(after_step, runs, self.copies))
+            continued.append(_unfolded(_where_done(after_step.done, fresh, after_step), runs, self.copies))
+        axis = len(runs)
+        finished = jnp.stack([body.done for body in stepped], axis)
         result = StepResult(
-            next_observation=self._padded_observation(stepped),
-            reward=jnp.stack([body.reward for body in stepped]),
-            terminated=jnp.stack([body.terminated for body in stepped]),
-            truncated=jnp.stack([body.truncated for body in stepped]),
+            next_observation=self._padded_observation(stepped, runs),
+            reward=jnp.stack([body.reward for body in stepped], axis),
+            terminated=jnp.stack([body.terminated for body in stepped], axis),
+            truncated=jnp.stack([body.truncated for body in stepped], axis),
         )
+
+        def finished_sum(values: list[jax.Array]) -> jax.Array:
+            return jnp.sum(jnp.where(finished, jnp.stack(values, axis), 0), axis=-1)
+
         episodes = EpisodeStats(
-            return_sum=state.episodes.return_sum
-            + jnp.sum(jnp.where(finished, jnp.stack([b.episode_return for b in stepped]), 0.0), axis=1),
-            length_sum=state.episodes.length_sum
-            + jnp.sum(jnp.where(finished, jnp.stack([b.episode_length for b in stepped]), 0), axis=1),
-            count=state.episodes.count + jnp.sum(finished, axis=1, dtype=jnp.int32),
+            return_sum=state.episodes.return_sum + finished_sum([b.episode_return for b in stepped]),
+            length_sum=state.episodes.length_sum + finished_sum([b.episode_length for b in stepped]),
+            count=state.episodes.count + jnp.sum(finished, axis=-1, dtype=jnp.int32),
         )
         continued = tuple(continued)
         next_state = MultiTaskState(
             bodies=continued,
-            observation=self._padded_observation(continued),
+            observation=self._padded_observation(continued, runs),
             rng=rng,
             episodes=episodes,
         )
         return next_state, result
 
-    def _padded_observation(self, bodies: Sequence[EnvState]) -> jax.Array:
-        """[K, n, L, F] from K per-body observations [n, limbs_k, F], zeros on padded limbs."""
+    def _split(self, rng: jax.Array, runs: tuple[int, ...]) -> tuple[jax.Array, ...]:
+        """K + 1 keys [*R] from each run's key: the run's next key, then one per body."""
+        return _per_run(lambda key: tuple(jax.random.split(key, self.num_bodies + 1)), runs)(rng)
+
+    def _copy_keys(self, keys: jax.Array, runs: tuple[int, ...]) -> jax.Array:
+        """[*R, n]: one key per copy from each run's body key [*R]."""
+        return _per_run(lambda key: jax.random.split(key, self.copies), runs)(keys)
+
+    def _padded_observation(self, bodies: Sequence[EnvState], runs: tuple[int, ...]) -> jax.Array:
+        """[*R, K, n, L, F] from K per-body observations [*R, n, limbs_k, F], zeros on padded limbs."""
         return jnp.stack(
             [
-                jnp.pad(body.observation, ((0, 0), (0, self.max_limbs - env.num_limbs), (0, 0)))
+                jnp.pad(
+                    body.observation,
+                    ((0, 0),) * (len(runs) + 1) + ((0, self.max_limbs - env.num_limbs), (0, 0)),
+                )
                 for env, body in zip(self.envs, bodies, strict=True)
-            ]
+            ],
+            len(runs),
         )
 
 
+def _per_run(function: Callable, runs: tuple[int, ...]) -> Callable:
+    """``function`` mapped over the run axes (itself when there are none): for the runs' own keys."""
+    for _ in runs:
+        function = jax.vmap(function)
+    return function
+
+
+def _folded(tree: Any, runs: tuple[int, ...], copies: int) -> Any:
+    """Every array [*R, n, ...] as [R x n, ...]: the runs' copies as one batch of copies. Arrays without
+    these axes (a Warp state's empty placeholders, :class:`~swat_jax.envs.physics.Simulator`) stay as
+    they are."""
+    lead = (*runs, copies)
+    return jax.tree_util.tree_map(
+        lambda x: x.reshape(math.prod(lead), *x.shape[len(lead) :]) if x.shape[: len(lead)] == lead else x,
+        tree,
+    )
+
+
+def _unfolded(tree: Any, runs: tuple[int, ...], copies: int) -> Any:
+    """The inverse of :func:`_folded`."""
+    folded = math.prod(runs) * copies
+    return jax.tree_util.tree_map(
+        lambda x: x.reshape(*runs, copies, *x.shape[1:]) if x.shape[:1] == (folded,) else x, tree
+    )
+
+
 def _step_and_restart(
-    env: BodyEnv, state: EnvState, action: jax.Array, rng: jax.Array
+    env: BodyEnv, state: EnvState, action: jax.Array, keys: jax.Array
 ) -> tuple[EnvState, EnvState]:
-    """Every copy [n] stepped, and a fresh episode for every copy (used where the step ended one).
+    """Every copy [n] stepped, and a fresh episode for every copy from its key (``keys`` [n]; used where
+    the step ended one).
 
     The stepped and the fresh simulator states share one kinematics pass over 2n copies, so the
     compiled step holds one kinematics program per body instead of two.
     """
     copies = action.shape[0]
     simulated = jax.vmap(env.simulate)(state.data, action)
-    initial = jax.vmap(env.initial_data)(jax.random.split(rng, copies))
+    initial = jax.vmap(env.initial_data)(keys)
     both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), simulated, initial)
     both = jax.vmap(env.kinematics)(both)
     simulated, initial = (

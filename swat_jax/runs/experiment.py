@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from swat_jax.compilation_cache import lower_afresh
+from swat_jax.compilation_cache import lower_built_afresh
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch, limb_buckets
 from swat_jax.networks import (
@@ -89,12 +89,15 @@ class Experiment:
         seed of that run (optimizers and replay buffers stay fresh).
 
         Jitted: an eager MJX reset dispatches thousands of small operations (minutes for five bodies); each
-        device computes its own shards.
+        device computes its own shards. Traced once, for both its shapes (which place it) and its program.
         """
-        shardings = self.placement.state_shardings(self.state_shapes)
+
+        def initial_state() -> Callable[[jax.Array], TrainState]:
+            shardings = self.placement.state_shardings(self.state_shapes)
+            return jax.jit(self._initial_state, out_shardings=shardings)
+
         keys = self._seed_keys()
-        initial_state = jax.jit(self._initial_state, out_shardings=shardings)
-        state = lower_afresh(initial_state, keys).compile()(keys)
+        state = lower_built_afresh(initial_state, keys).compile()(keys)
         if self.config.init_from:
             state = state.replace(learner=self._transferred(state.learner))
         return self._placed(state)
@@ -129,6 +132,12 @@ class Experiment:
         Experiment: a second of tracing MJX's reset)."""
         return jax.eval_shape(self._initial_state, self._seed_keys())
 
+    @functools.cached_property
+    def _initial_state(self) -> Callable[[jax.Array], TrainState]:
+        """The fresh state of every seed from their keys [S]; one function object, so that JAX's trace
+        cache serves :attr:`state_shapes` and :meth:`init_state` with one trace."""
+        return functools.partial(init_seeded_train_state, self.env, self.learner, self.config.iteration)
+
     def _placed(self, state: TrainState) -> TrainState:
         """Every array of ``state`` committed to its place on the mesh.
 
@@ -140,9 +149,6 @@ class Experiment:
 
     def _seed_keys(self) -> jax.Array:
         return seed_keys(self.config.seed, self.config.seeds)
-
-    def _initial_state(self, rngs: jax.Array) -> TrainState:
-        return init_seeded_train_state(self.env, self.learner, self.config.iteration, rngs)
 
     def iteration(self) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
         """The jitted training iteration of every seed, partitioned over the mesh; it consumes (donates) its
