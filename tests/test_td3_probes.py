@@ -34,8 +34,8 @@ def learner(discount: float = 0.5) -> Learner:
     return Learner(actor, critic, td3)
 
 
-def random_batch(rng: jax.Array, *, reward_fn, terminated: bool) -> Transitions:
-    """Observations uniform in [-1, 1], random actions; reward from ``reward_fn(obs, action)`` [T, B]."""
+def random_batch(rng: jax.Array, *, reward: jax.Array, terminated: jax.Array) -> Transitions:
+    """Observations uniform in [-1, 1], random actions; reward [T, B] from ``REWARDS[reward](obs, action)``."""
     keys = jax.random.split(rng, 3)
     shape = (2, BATCH, 5)
     mask = jnp.asarray(MASK)[:, None, :]
@@ -47,7 +47,7 @@ def random_batch(rng: jax.Array, *, reward_fn, terminated: bool) -> Transitions:
     return Transitions(
         observation=observation,
         action=action,
-        reward=reward_fn(observation, action),
+        reward=jax.lax.switch(reward, REWARDS, observation, action),
         next_observation=next_observation,
         terminated=jnp.full(shape[:2], terminated),
     )
@@ -64,17 +64,37 @@ class ProbeRun(NamedTuple):
     """A fresh batch of the process to check the answer on."""
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2, 3), compiler_options=XLA_DEFAULTS)
-def train(td3: Learner, reward_fn, terminated: bool, updates: int) -> ProbeRun:
-    def one_update(state, rng):
+MAX_UPDATES = 2000
+
+
+@functools.partial(jax.jit, static_argnums=(0,), compiler_options=XLA_DEFAULTS)
+def train_program(td3: Learner, reward: jax.Array, terminated: jax.Array, updates: jax.Array) -> ProbeRun:
+    """One program for every probe: the reward function (an index into REWARDS), termination and the number
+    of updates (at most MAX_UPDATES; the scan skips the rest) are inputs, not constants."""
+
+    def one_update(state, step_and_rng):
+        step, rng = step_and_rng
         batch_key, noise_key = jax.random.split(rng)
-        batch = random_batch(batch_key, reward_fn=reward_fn, terminated=terminated)
-        return td3.update(state, batch, STRUCTURE, noise_key)
+        batch = random_batch(batch_key, reward=reward, terminated=terminated)
+        return jax.lax.cond(
+            step < updates,
+            lambda s: td3.update(s, batch, STRUCTURE, noise_key),
+            lambda s: (s, {"critic_loss": jnp.zeros(()), "actor_loss": jnp.zeros(())}),
+            state,
+        )
 
     initial = td3.init(jax.random.PRNGKey(0))
-    state, metrics = jax.lax.scan(one_update, initial, jax.random.split(jax.random.PRNGKey(1), updates))
-    probe = random_batch(jax.random.PRNGKey(2), reward_fn=reward_fn, terminated=terminated)
+    steps = (jnp.arange(MAX_UPDATES), jax.random.split(jax.random.PRNGKey(1), MAX_UPDATES))
+    state, metrics = jax.lax.scan(one_update, initial, steps)
+    probe = random_batch(jax.random.PRNGKey(2), reward=reward, terminated=terminated)
     return ProbeRun(initial, state, metrics, probe)
+
+
+def train(td3: Learner, reward_fn, terminated: bool, updates: int) -> ProbeRun:
+    """``updates`` TD3 updates on fresh batches of the process with ``reward_fn``; metrics [updates]."""
+    assert updates <= MAX_UPDATES
+    run = train_program(td3, jnp.int32(REWARDS.index(reward_fn)), jnp.bool_(terminated), jnp.int32(updates))
+    return run._replace(metrics=jax.tree_util.tree_map(lambda leaf: leaf[:updates], run.metrics))
 
 
 def critic_values(td3: Learner, state, batch: Transitions) -> np.ndarray:
@@ -100,6 +120,9 @@ def matching_reward(observation, action):
     mask = jnp.asarray(MASK)[:, None, :]
     error = jnp.where(mask, (action - 0.8 * observation[..., 0]) ** 2, 0.0)
     return -error.sum(-1) / mask.sum(-1)
+
+
+REWARDS = (constant_reward, limb_mean_reward, matching_reward)
 
 
 @pytest.mark.parametrize("terminated, expected", [(True, 1.0), (False, 2.0)])
