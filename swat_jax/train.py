@@ -180,8 +180,10 @@ def train(
     """
     experiment = Experiment.build(config, _chosen_devices(devices))
     env = experiment.env
+    # Shapes only: initialising the actor eagerly compiles each of its operations.
+    actor_parameters = param_count(jax.eval_shape(experiment.learner.actor.init, jax.random.PRNGKey(0)))
     print(
-        f"run {config.directory()}: {config.algo} ({param_count(experiment.learner.actor.init(jax.random.PRNGKey(0))):,} "
+        f"run {config.directory()}: {config.algo} ({actor_parameters:,} "
         f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
         f"{env.max_limbs} limbs max, seeds {', '.join(map(str, config.seed_values()))} in one program"
     )
