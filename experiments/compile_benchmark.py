@@ -9,7 +9,11 @@ compiling the training iteration, and its first call (where Warp loads its kerne
 Cache states, in this order, each in its own process:
 
 - cold: empty JAX compilation cache and, for Warp, an empty Warp kernel cache (a new machine);
-- warm JAX cache: the JAX cache the cold run filled (a second run of the same command);
+- warm JAX cache, no program cache: the JAX cache the cold run filled, without the programs it saved
+  (:func:`swat_jax.compilation_cache.compile_cached`): the iteration is traced and lowered again, and its
+  compiled program loaded from JAX's cache;
+- warm JAX and program caches: a second run of the same command (no tracing; for Warp, whose programs are
+  not saved, the same as the row before);
 - other set: for Warp, a new JAX cache and the Warp kernel cache the cold run filled, on ``--other-set``
   (a run of a different set on a machine that has run Warp once: Warp's kernels serve every body).
 
@@ -24,6 +28,7 @@ import dataclasses
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -32,8 +37,13 @@ from pathlib import Path
 
 from machine import cpu_model, host_cores, software_versions
 
+from swat_jax.compilation_cache import PROGRAMS
+
 PHASES = ("build", "init_state", "trace", "compile", "first_call")
-"""Seconds to the first trained iteration, in order."""
+"""Seconds to the first trained iteration, in order. ``trace`` is JAX's tracing and lowering of the
+iteration (none when the program cache holds it), ``compile`` the rest of ``Experiment.compiled_iteration``:
+XLA's compile, or loading the program from either cache."""
+TRACE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
 
 
 def measure(env: str, preset: str, physics: str, iterations: int) -> dict[str, float]:
@@ -51,12 +61,17 @@ def measure(env: str, preset: str, physics: str, iterations: int) -> dict[str, f
     start = time.perf_counter()
     state = jax.block_until_ready(experiment.init_state())
     seconds["init_state"] = time.perf_counter() - start
+    tracing = []
+
+    def listen(event: str, duration: float, **_: object) -> None:
+        if event in TRACE_EVENTS:
+            tracing.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
     start = time.perf_counter()
-    lowered = experiment.iteration().lower(state)
-    seconds["trace"] = time.perf_counter() - start
-    start = time.perf_counter()
-    iteration = lowered.compile()
-    seconds["compile"] = time.perf_counter() - start
+    iteration = experiment.compiled_iteration(state)
+    seconds["trace"] = sum(tracing)
+    seconds["compile"] = time.perf_counter() - start - seconds["trace"]
     start = time.perf_counter()
     state, _ = jax.block_until_ready(iteration(state))
     seconds["first_call"] = time.perf_counter() - start
@@ -112,12 +127,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         for physics in args.physics:
             jax_cache, warp_cache = Path(scratch, physics, "jax"), Path(scratch, physics, "warp")
-            cases = [("cold", args.env, jax_cache), ("warm JAX cache", args.env, jax_cache)]
+            cases = [
+                ("cold", args.env, jax_cache),
+                ("warm JAX cache, no program cache", args.env, jax_cache),
+                ("warm JAX and program caches", args.env, jax_cache),
+            ]
             if physics == "warp":
                 cases.append(
                     ("other set, kernels cached", args.other_set, Path(scratch, physics, "jax-other"))
                 )
             for label, env, cache in cases:
+                if "no program cache" in label:
+                    shutil.rmtree(cache / PROGRAMS, ignore_errors=True)
                 result = run_child(env, args.preset, physics, args.iterations, cache, warp_cache)
                 rows.append((physics, label, env, result))
                 total = sum(result[phase] for phase in PHASES)

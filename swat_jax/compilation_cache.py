@@ -6,16 +6,29 @@ in seconds. The cache lives in ``$SWAT_JAX_CACHE_DIR`` (default ``~/.cache/swat_
 
 The cache is keyed by the lowered program, and JAX's in-memory caches of traced functions change how a
 program lowers after others in the same process (the training iteration, lowered a second time from a
-new ``Experiment``, gains a duplicated helper function): :func:`lower_afresh` lowers the large
+new ``Experiment``, gains a duplicated helper function): :func:`lower_built_afresh` lowers the large
 programs as a fresh process would, so a second run in one process (tests, notebooks, a resume
 on another device layout) finds the first run's programs in the cache.
+
+JAX's cache skips XLA's compile, not the tracing and lowering before it (half a warm start of an
+Animal-Walkers run). :func:`compile_cached` keeps the run's large programs whole, compiled, in
+``programs/`` of the same directory, keyed by what they are traced from (the run's config, its bodies'
+compiled MuJoCo models, the arguments' shapes and placement) and by this package's source, the
+libraries' versions, JAX's settings and ``XLA_FLAGS``: a second start of the same run loads them without
+tracing.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import importlib.metadata
 import os
+import pickle
+import re
 import sys
-from collections.abc import Callable
+import zlib
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +36,14 @@ DISABLE_VARIABLE = "SWAT_JAX_COMPILATION_CACHE"
 DIRECTORY_VARIABLE = "SWAT_JAX_CACHE_DIR"
 MIN_COMPILE_SECONDS = 1.0
 """Programs that compile faster than this are not worth a disk entry."""
+PROGRAMS = "programs"
+"""The subdirectory of the cache directory that holds :func:`compile_cached`'s programs."""
+PORTABLE_CUSTOM_CALL = re.compile(r"lapack_\w+_ffi")
+"""The custom calls a program loaded in another process can make: LAPACK's (which
+:func:`_initialize_lapack` sets up). Programs that call anything else (Warp's kernels, Python callbacks,
+a GPU library) are not saved."""
+LIBRARIES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", "warp-lang")
+"""The installed distributions whose versions key the program cache (besides this package's source)."""
 
 
 def cache_directory() -> Path | None:
@@ -54,33 +75,204 @@ def enable_compilation_cache() -> Path | None:
     return directory
 
 
-def lower_afresh(function: Any, *args: Any) -> Any:
-    """``function.lower(*args)`` (``function`` a ``jax.jit`` result) after clearing JAX's in-memory trace and
-    lowering caches: the ``jax.stages.Lowered`` program, and so its persistent-cache key, is the one a fresh
-    process lowers. Callers compile it and hold the result (jitted functions not held are traced again on
-    their next call)."""
-    return lower_built_afresh(lambda: function, *args)
-
-
 def lower_built_afresh(build: Callable[[], Any], *args: Any) -> Any:
-    """:func:`lower_afresh` of the ``jax.jit`` result ``build()``, built after the caches are cleared: a
-    build that traces the same function on the way (``jax.eval_shape`` for its output shardings) leaves
-    that trace in the cache for the lowering, so the function is traced once."""
+    """``build().lower(*args)`` (``build()`` a ``jax.jit`` result), built after clearing JAX's in-memory trace
+    and lowering caches: the ``jax.stages.Lowered`` program, and so its persistent-cache key, is the one a
+    fresh process lowers. A build that traces the same function on the way (``jax.eval_shape`` for its
+    output shardings) leaves that trace in the cache for the lowering, so the function is traced once."""
     import jax
 
     jax.clear_caches()
     return build().lower(*args)
 
 
-def compiled_at_first_call(function: Any) -> Callable[..., Any]:
-    """``function`` (a ``jax.jit`` result) lowered with :func:`lower_afresh` and compiled when first called,
-    for the arguments of that call; later calls run that program."""
+def compile_cached(
+    name: str, build: Callable[[], Any], args: Sequence[Any], recipe: Sequence[Any] | None
+) -> Any:
+    """The ``jax.stages.Compiled`` program of ``build()`` (a ``jax.jit`` result) for ``args``: loaded from the
+    program cache when a program of the same name, recipe and arguments was compiled before by the same
+    source, libraries and settings; else lowered with :func:`lower_built_afresh`, compiled and saved.
+
+    Args:
+        name: the file name's prefix (``iteration``, ``evaluation``...).
+        build: makes the jitted function; called only when the program is not in the cache.
+        args: the arguments the program will be called with; their tree, shapes, dtypes and shardings key it.
+        recipe: everything else the traced function depends on, as values with a deterministic ``repr``
+            (frozen configs, tuples) or bytes: with this package's source and the settings, it must determine
+            the program. None for programs that cannot be loaded in another process (calls into kernels
+            registered by this one, such as MuJoCo Warp's): compiled every time, never saved.
+
+    Runs over several hosts compile every time too: each host's program is its part of one program.
+    """
+    import jax
+
+    directory = cache_directory()
+    if directory is None or recipe is None or jax.process_count() > 1:
+        return lower_built_afresh(build, *args).compile()
+    path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"
+    compiled = _load_program(path)
+    if compiled is None:
+        hits = _persistent_cache_hits()
+        compiled = lower_built_afresh(build, *args).compile()
+        # JAX's cache held it: an executable it loaded saves without some of its kernels (jax 0.10.2).
+        if _persistent_cache_hits() == hits:
+            _save_program(compiled, path)
+    return compiled
+
+
+def compiled_at_first_call(
+    name: str, build: Callable[[], Any], recipe: Sequence[Any] | None
+) -> Callable[..., Any]:
+    """:func:`compile_cached` for the arguments of the first call; later calls run that program."""
     compiled = None
 
     def call(*args: Any) -> Any:
         nonlocal compiled
         if compiled is None:
-            compiled = lower_afresh(function, *args).compile()
+            compiled = compile_cached(name, build, args, recipe)
         return compiled(*args)
 
     return call
+
+
+def _program_key(name: str, recipe: Sequence[Any], args: Sequence[Any]) -> str:
+    """SHA-256 of the program's name, recipe and argument signature, and of everything else that shapes a
+    compiled program: this package's source, the libraries' versions, JAX's settings (less the cache's
+    own), ``XLA_FLAGS`` and the devices."""
+    import jax
+
+    digest = hashlib.sha256()
+
+    def add(part: Any) -> None:
+        data = part if isinstance(part, bytes) else repr(part).encode()
+        digest.update(len(data).to_bytes(8, "little") + data)
+
+    add(name)
+    for part in recipe:
+        add(part)
+    # Leaf paths, not the tree's str: static fields (MJX's numpy arrays) print with their addresses.
+    for path, leaf in jax.tree_util.tree_flatten_with_path(args)[0]:
+        sharding = getattr(leaf, "sharding", None)
+        mesh = getattr(sharding, "mesh", None)
+        devices = getattr(mesh, "device_ids", None)
+        add(
+            (
+                jax.tree_util.keystr(path),
+                str(jax.typeof(leaf)),
+                repr(sharding),
+                repr(devices),
+                getattr(leaf, "committed", None),
+            )
+        )
+    add(_source_and_libraries())
+    settings = {
+        key: value
+        for key, value in jax.config.values.items()
+        if not key.startswith(
+            ("jax_compilation_cache", "jax_persistent_cache", "jax_enable_compilation_cache")
+        )
+    }
+    add(sorted(settings.items(), key=lambda item: item[0]))
+    add(os.environ.get("XLA_FLAGS", ""))
+    add([(device.platform, device.device_kind, device.id, device.process_index) for device in jax.devices()])
+    return digest.hexdigest()
+
+
+@functools.cache
+def _source_and_libraries() -> str:
+    """SHA-256 of every Python file of this package (path and contents) and the libraries' versions."""
+    package = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes() + b"\0")
+    for library in LIBRARIES:
+        try:
+            version = importlib.metadata.version(library)
+        except importlib.metadata.PackageNotFoundError:
+            version = "absent"
+        digest.update(f"{library}=={version}\0".encode())
+    digest.update(sys.version.encode())
+    return digest.hexdigest()
+
+
+def _load_program(path: Path) -> Any:
+    """The compiled program saved at ``path``, or None if there is none or it cannot be loaded."""
+    import jax
+    from jax.experimental import serialize_executable
+
+    if not path.exists():
+        return None
+    _initialize_lapack()
+    try:
+        payload, in_tree, out_tree, device_ids = pickle.loads(zlib.decompress(path.read_bytes()))
+        devices = {device.id: device for device in jax.devices()}
+        return serialize_executable.deserialize_and_load(
+            payload, in_tree, out_tree, execution_devices=[devices[index] for index in device_ids]
+        )
+    except Exception as error:  # a truncated or foreign file: compiled again and overwritten
+        print(f"warning: ignoring the unreadable cached program {path} ({error!r})", file=sys.stderr)
+        return None
+
+
+def _save_program(compiled: Any, path: Path) -> None:
+    """``compiled`` written to ``path`` atomically; programs JAX cannot serialize, or that make custom calls
+    other than :data:`PORTABLE_CUSTOM_CALL`'s, are not saved."""
+    from jax.experimental import serialize_executable
+
+    targets = set(re.findall(r'custom_call_target="([^"]+)"', compiled.as_text()))
+    if not all(PORTABLE_CUSTOM_CALL.fullmatch(target) for target in targets):
+        return
+    try:
+        data = zlib.compress(
+            pickle.dumps((*serialize_executable.serialize(compiled), _device_ids(compiled))), 1
+        )
+    except (ValueError, NotImplementedError, pickle.PicklingError, TypeError):
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
+    partial.write_bytes(data)
+    os.replace(partial, path)
+
+
+def _device_ids(compiled: Any) -> list[int]:
+    """The ids of the devices ``compiled`` runs on, in its mesh's order (a loaded program runs on the
+    devices it is given: by default every device). ValueError if its outputs have neither a mesh nor a
+    single device."""
+    import jax
+
+    sharding = jax.tree_util.tree_leaves(compiled.output_shardings)[0]
+    mesh = getattr(sharding, "mesh", None)
+    devices = list(mesh.devices.flat) if mesh is not None else list(sharding.device_set)
+    if mesh is None and len(devices) != 1:
+        raise ValueError(f"no device order for {sharding}")
+    return [device.id for device in devices]
+
+
+@functools.cache
+def _initialize_lapack() -> None:
+    """Set up LAPACK's kernels for the CPU. JAX does it when it first lowers a linear-algebra operation;
+    a loaded program calls them without lowering anything (and crashes if they are not set up)."""
+    import jax
+    import jax.numpy as jnp
+
+    jax.jit(jnp.linalg.cholesky).trace(jnp.eye(2)).lower(lowering_platforms=("cpu",))
+
+
+def _persistent_cache_hits() -> int:
+    """How many programs this process has loaded from JAX's persistent cache so far."""
+    return _persistent_cache_hit_counter()[0]
+
+
+@functools.cache
+def _persistent_cache_hit_counter() -> list[int]:
+    """A one-element list that JAX's cache-hit events increment, from the first call on."""
+    import jax
+
+    counter = [0]
+
+    def listen(event: str, **_: Any) -> None:
+        if event == "/jax/compilation_cache/cache_hits":
+            counter[0] += 1
+
+    jax.monitoring.register_event_listener(listen)
+    return counter

@@ -24,13 +24,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from swat_jax.cli import positive_int, run_command
-from swat_jax.compilation_cache import lower_afresh
+from swat_jax.compilation_cache import compile_cached
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import MorphologyError, get_set
 from swat_jax.networks import StructureMismatch, task_set
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
-from swat_jax.runs.experiment import TrainedPolicy, load_policy
+from swat_jax.runs.experiment import TrainedPolicy, load_policy, program_recipe
 from swat_jax.runs.metrics import standard_error
 from swat_jax.td3.evaluation import make_evaluation
 
@@ -120,8 +120,12 @@ def evaluate(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )
     key = jax.random.PRNGKey(seed)
-    evaluation = jax.jit(make_evaluation(env, tasks.structure, policy.actor, record=record))
-    evaluation = lower_afresh(evaluation, params, key).compile()
+    evaluation = compile_cached(
+        "evaluation",
+        lambda: jax.jit(make_evaluation(env, tasks.structure, policy.actor, record=record)),
+        (params, key),
+        program_recipe(policy.config, env, record),
+    )
     result = jax.device_get(evaluation(params, key))
     seeds = tuple(policy.seeds[index] for index in indices)
     evaluations = []

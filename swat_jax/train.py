@@ -34,7 +34,6 @@ import tyro
 from tqdm import tqdm
 
 from swat_jax.cli import ERROR_STATUS
-from swat_jax.compilation_cache import compiled_at_first_call, lower_afresh
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
@@ -246,9 +245,9 @@ def _loop(
 
     start = time.perf_counter()
     print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
-    iteration = lower_afresh(experiment.iteration(), state).compile()
+    iteration = experiment.compiled_iteration(state)
     print(f"compiled in {time.perf_counter() - start:.1f} s")
-    evaluation = compiled_at_first_call(experiment.evaluation()) if config.eval_interval else None
+    evaluation = experiment.compiled_evaluation() if config.eval_interval else None
 
     saved = done
 

@@ -20,7 +20,7 @@ import pytest
 from conftest import MORPHOLOGIES, tiny_train_config, train_flags
 from tensorboardX.proto import event_pb2
 
-from swat_jax.compilation_cache import lower_afresh
+from swat_jax.compilation_cache import lower_built_afresh
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
@@ -198,7 +198,7 @@ def test_a_second_run_in_one_process_lowers_the_first_runs_iteration(tmp_path):
     for _ in range(2):
         experiment = Experiment.build(config)
         state = experiment.init_state()
-        texts.append(lower_afresh(experiment.iteration(), state).as_text())
+        texts.append(lower_built_afresh(experiment.iteration, state).as_text())
     assert texts[0] == texts[1]
 
 
@@ -278,14 +278,15 @@ def test_ctrl_c_while_compiling_exits_cleanly_and_the_run_can_be_started(
     trained_run, hopper_folder, tmp_path, monkeypatch, capsys
 ):
     """Ctrl-C while the iteration compiles: the KeyboardInterrupt Python raises there (raised here where the
-    compile starts, so the test does not race a compile that a loaded machine or the cache makes short)."""
+    compile or the load from the cache starts, so the test does not race a compile that a loaded machine or
+    the caches make short)."""
     config = tiny_train_config(tmp_path / "early", hopper_folder, steps=100)
 
-    def compile_interrupted(experiment: Experiment):
+    def compile_interrupted(experiment: Experiment, state):
         raise KeyboardInterrupt
 
     with monkeypatch.context() as patched:
-        patched.setattr(Experiment, "iteration", compile_interrupted)
+        patched.setattr(Experiment, "compiled_iteration", compile_interrupted)
         assert main(train_flags(config)) == 130
     stderr = capsys.readouterr().err
     assert "Traceback" not in stderr

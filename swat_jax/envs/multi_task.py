@@ -18,12 +18,15 @@ MJX's loops batches every loop body once more (a second pass over the whole phys
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import mujoco
+import numpy as np
 from flax import struct
 
 from swat_jax.envs.body import BodyEnv, EnvState
@@ -144,6 +147,20 @@ class MultiTaskEnv:
     @property
     def body_names(self) -> tuple[str, ...]:
         return tuple(env.morphology.name for env in self.envs)
+
+    def definition(self) -> tuple[Any, ...] | None:
+        """What a program of these environments is traced from besides its arguments, the key of
+        :func:`swat_jax.compilation_cache.compile_cached`: copies, padding, the observation's frame and,
+        per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary MJB: every size,
+        parameter and asset). None with Warp physics: its programs call kernels that this process registers
+        and cannot be loaded by another."""
+        if any(env.simulator.implementation != "jax" for env in self.envs):
+            return None
+        return (
+            self.copies,
+            self.max_limbs,
+            *((env.morphology, env.torso_relative_x, _model_digest(env.mj_model)) for env in self.envs),
+        )
 
     def reset(self, rng: jax.Array) -> MultiTaskState:
         """Start an episode in every copy of every body; a key array ``rng`` [*R] starts R runs, each from
@@ -285,3 +302,10 @@ def _where_done(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState
         return others.replace(data=stepped.data.where(done, fresh.data))
 
     return jax.vmap(select)(done, fresh, stepped)
+
+
+def _model_digest(mj_model: mujoco.MjModel) -> str:
+    """SHA-256 of ``mj_model`` saved as MuJoCo's binary MJB."""
+    buffer = np.zeros(mujoco.mj_sizeModel(mj_model), np.uint8)
+    mujoco.mj_saveModel(mj_model, None, buffer)
+    return hashlib.sha256(buffer).hexdigest()

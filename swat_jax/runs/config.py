@@ -43,6 +43,24 @@ def _require_positive(flag: str, value: Any) -> None:
         raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")
 
 
+HOST_FIELDS = (
+    "env",
+    "split",
+    "bodies",
+    "init_from",
+    "init_seed_index",
+    "preset",
+    "seed",
+    "steps",
+    "log_interval",
+    "eval_interval",
+    "checkpoint_interval",
+    "keep_checkpoints",
+    "run_dir",
+)
+"""TrainConfig fields that no compiled program depends on (:meth:`TrainConfig.program_config`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022)."""
@@ -162,6 +180,13 @@ class TrainConfig:
         if self.smp_hidden is not None:
             sizes.update(up_hidden=(self.smp_hidden,) * 2, down_hidden=(self.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
+
+    def program_config(self) -> TrainConfig:
+        """This config with the fields that only the host loop reads set to their defaults: where and how
+        long the run goes, how often it logs, evaluates and checkpoints, its first seed and transfer source,
+        and how its bodies are named (the programs see them as models). Two configs that trace the same
+        programs have the same ``program_config`` (:func:`swat_jax.runs.experiment.program_recipe`)."""
+        return dataclasses.replace(self, **{name: getattr(TrainConfig, name) for name in HOST_FIELDS})
 
     def training_bodies(self) -> tuple[str, ...]:
         """The bodies this run trains on: ``bodies`` if given, else ``split`` of ``env`` (names, or MJCF

@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from swat_jax.compilation_cache import lower_built_afresh
+from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import StructureBatch, limb_buckets
 from swat_jax.networks import (
@@ -97,7 +97,7 @@ class Experiment:
             return jax.jit(self._initial_state, out_shardings=shardings)
 
         keys = self._seed_keys()
-        state = lower_built_afresh(initial_state, keys).compile()(keys)
+        state = compile_cached("init_state", initial_state, (keys,), self._recipe(self.env))(keys)
         if self.config.init_from:
             state = state.replace(learner=self._transferred(state.learner))
         return self._placed(state)
@@ -161,17 +161,36 @@ class Experiment:
             donate_argnums=0,
         )
 
+    def compiled_iteration(
+        self, state: TrainState
+    ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
+        """:meth:`iteration` compiled for ``state``, or loaded compiled from the program cache
+        (:func:`swat_jax.compilation_cache.compile_cached`)."""
+        return compile_cached("iteration", self.iteration, (state,), self._recipe(self.env))
+
     def evaluation(self) -> Callable[[Params, jax.Array], Episodes]:
         """The jitted deterministic evaluation of actor parameters [S, ...] on the train bodies,
         ``config.eval_episodes`` episodes each (:func:`swat_jax.td3.evaluation.make_evaluation`)."""
-        env = MultiTaskEnv(
+        return jax.jit(make_evaluation(self._evaluation_env, self.tasks.structure, self.learner.actor))
+
+    def compiled_evaluation(self) -> Callable[[Params, jax.Array], Episodes]:
+        """:meth:`evaluation`, compiled (or loaded from the program cache) at its first call."""
+        return compiled_at_first_call("evaluation", self.evaluation, self._recipe(self._evaluation_env))
+
+    @functools.cached_property
+    def _evaluation_env(self) -> MultiTaskEnv:
+        """The train bodies with ``config.eval_episodes`` copies each, one run per seed."""
+        return MultiTaskEnv(
             self.tasks.bodies,
             self.config.eval_episodes,
             torso_relative_x=self.config.torso_relative_x,
             physics=self.config.physics,
             runs=self.config.seeds,
         )
-        return jax.jit(make_evaluation(env, self.tasks.structure, self.learner.actor))
+
+    def _recipe(self, env: MultiTaskEnv) -> tuple[Any, ...] | None:
+        """:func:`program_recipe` with the mesh the programs place their outputs on."""
+        return program_recipe(self.config, env, self.placement, self.placement.mesh.device_ids.tolist())
 
     def info(self) -> dict[str, Any]:
         """What a policy needs besides its parameters, stored in every checkpoint."""
@@ -181,6 +200,14 @@ class Experiment:
             "max_limbs": self.env.max_limbs,
             "observation_features": self.env.observation_features,
         }
+
+
+def program_recipe(config: TrainConfig, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:
+    """What a program of a run with ``config`` on ``env`` is traced from besides its arguments, for
+    :func:`swat_jax.compilation_cache.compile_cached`: the config's program fields, the environments'
+    definition and ``extra``; None where the environments' programs cannot be cached (Warp physics)."""
+    definition = env.definition()
+    return None if definition is None else (config.program_config(), definition, *extra)
 
 
 def network_items(learner: LearnerState) -> dict[str, Any]:
