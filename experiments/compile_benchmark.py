@@ -9,11 +9,10 @@ compiling the training iteration, and its first call (where Warp loads its kerne
 Cache states, in this order, each in its own process:
 
 - cold: empty JAX compilation cache and, for Warp, an empty Warp kernel cache (a new machine);
-- warm JAX cache, no program cache: the JAX cache the cold run filled, without the programs it saved
-  (:func:`swat_jax.compilation_cache.compile_cached`): the iteration is traced and lowered again, and its
-  compiled program loaded from JAX's cache;
-- warm JAX and program caches: a second run of the same command (no tracing; for Warp, whose programs are
-  not saved, the same as the row before);
+- warm JAX and program caches: a second run of the same command (the programs the cold run saved,
+  :func:`swat_jax.compilation_cache.compile_cached`, load without tracing; Warp's are not saved);
+- warm JAX cache, no program cache: the same without those programs: the iteration is traced and lowered
+  again, and its compiled program loaded from JAX's cache (a start before the program cache);
 - other set: for Warp, a new JAX cache and the Warp kernel cache the cold run filled, on ``--other-set``
   (a run of a different set on a machine that has run Warp once: Warp's kernels serve every body).
 
@@ -129,8 +128,8 @@ def main() -> None:
             jax_cache, warp_cache = Path(scratch, physics, "jax"), Path(scratch, physics, "warp")
             cases = [
                 ("cold", args.env, jax_cache),
-                ("warm JAX cache, no program cache", args.env, jax_cache),
                 ("warm JAX and program caches", args.env, jax_cache),
+                ("warm JAX cache, no program cache", args.env, jax_cache),
             ]
             if physics == "warp":
                 cases.append(
