@@ -15,7 +15,8 @@ Animal-Walkers run). :func:`compile_cached` keeps the run's large programs whole
 ``programs/`` of the same directory, keyed by what they are traced from (the run's config, its bodies'
 compiled MuJoCo models, the arguments' shapes and placement) and by this package's source, the
 libraries' versions, JAX's settings and ``XLA_FLAGS``: a second start of the same run loads them without
-tracing.
+tracing. The programs least recently saved or loaded are deleted once ``programs/`` outgrows
+``$SWAT_JAX_PROGRAM_CACHE_GIB`` (default 2 GiB; an Animal-Walkers iteration takes about 7 MB).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ PORTABLE_CUSTOM_CALL = re.compile(r"lapack_\w+_ffi")
 """The custom calls a program loaded in another process can make: LAPACK's (which
 :func:`_initialize_lapack` sets up). Programs that call anything else (Warp's kernels, Python callbacks,
 a GPU library) are not saved."""
+SIZE_VARIABLE = "SWAT_JAX_PROGRAM_CACHE_GIB"
+DEFAULT_PROGRAMS_GIB = 2.0
+"""The program cache's size limit, GiB, unless ``$SWAT_JAX_PROGRAM_CACHE_GIB`` sets another."""
 LIBRARIES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", "warp-lang")
 """The installed distributions whose versions key the program cache (besides this package's source)."""
 
@@ -109,6 +113,7 @@ def compile_cached(
     directory = cache_directory()
     if directory is None or recipe is None or jax.process_count() > 1:
         return lower_built_afresh(build, *args).compile()
+    limit = _size_limit()
     path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"
     compiled = _load_program(path)
     if compiled is None:
@@ -116,7 +121,7 @@ def compile_cached(
         compiled = lower_built_afresh(build, *args).compile()
         # JAX's cache held it: an executable it loaded saves without some of its kernels (jax 0.10.2).
         if _persistent_cache_hits() == hits:
-            _save_program(compiled, path)
+            _save_program(compiled, path, limit)
     return compiled
 
 
@@ -206,17 +211,20 @@ def _load_program(path: Path) -> Any:
     try:
         payload, in_tree, out_tree, device_ids = pickle.loads(zlib.decompress(path.read_bytes()))
         devices = {device.id: device for device in jax.devices()}
-        return serialize_executable.deserialize_and_load(
+        compiled = serialize_executable.deserialize_and_load(
             payload, in_tree, out_tree, execution_devices=[devices[index] for index in device_ids]
         )
     except Exception as error:  # a truncated or foreign file: compiled again and overwritten
         print(f"warning: ignoring the unreadable cached program {path} ({error!r})", file=sys.stderr)
         return None
+    path.touch(exist_ok=True)  # recently used: the last to be evicted
+    return compiled
 
 
-def _save_program(compiled: Any, path: Path) -> None:
-    """``compiled`` written to ``path`` atomically; programs JAX cannot serialize, or that make custom calls
-    other than :data:`PORTABLE_CUSTOM_CALL`'s, are not saved."""
+def _save_program(compiled: Any, path: Path, limit: int) -> None:
+    """``compiled`` written to ``path`` atomically, then the least recently used programs evicted down to
+    ``limit`` bytes; programs JAX cannot serialize, or that make custom calls other than
+    :data:`PORTABLE_CUSTOM_CALL`'s, are not saved."""
     from jax.experimental import serialize_executable
 
     targets = set(re.findall(r'custom_call_target="([^"]+)"', compiled.as_text()))
@@ -232,6 +240,41 @@ def _save_program(compiled: Any, path: Path) -> None:
     partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
     partial.write_bytes(data)
     os.replace(partial, path)
+    _evict_least_recently_used(path.parent, limit)
+
+
+def _size_limit() -> int:
+    """The program cache's size limit in bytes, from ``$SWAT_JAX_PROGRAM_CACHE_GIB``."""
+    text = os.environ.get(SIZE_VARIABLE, str(DEFAULT_PROGRAMS_GIB))
+    try:
+        gib = float(text)
+    except ValueError:
+        gib = -1.0
+    if not gib >= 0:
+        raise ValueError(
+            f"{SIZE_VARIABLE}={text!r} is not a size in GiB: set it to a number such as 0.5 or 4, "
+            f"or unset it for the default {DEFAULT_PROGRAMS_GIB:g} GiB"
+        )
+    return int(gib * 2**30)
+
+
+def _evict_least_recently_used(directory: Path, limit: int) -> None:
+    """Delete the programs of ``directory`` least recently saved or loaded (file modification time) until
+    the rest take at most ``limit`` bytes; the most recent one always stays."""
+    entries = []
+    for path in directory.iterdir():
+        if path.name.endswith(".partial"):
+            continue
+        try:
+            status = path.stat()
+        except FileNotFoundError:  # evicted by another process meanwhile
+            continue
+        entries.append((status.st_mtime_ns, status.st_size, path))
+    total = 0
+    for index, (_, size, path) in enumerate(sorted(entries, reverse=True)):
+        total += size
+        if total > limit and index > 0:
+            path.unlink(missing_ok=True)
 
 
 def _device_ids(compiled: Any) -> list[int]:

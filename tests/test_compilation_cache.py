@@ -142,6 +142,34 @@ def test_the_program_cache_is_off_with_the_compilation_cache(program_cache, monk
     assert not program_cache.exists()
 
 
+def test_the_least_recently_used_programs_go_when_the_cache_is_full(program_cache, monkeypatch):
+    x = jnp.ones((4, 3))
+
+    def compile_probe(recipe: str) -> Probe:
+        probe = Probe()
+        compile_cached("probe", probe.build, (x,), (recipe,))
+        return probe
+
+    compile_probe("first")
+    (first,) = program_cache.iterdir()
+    compile_probe("second")
+    assert compile_probe("first").traces == 0  # loaded: now more recent than "second"
+    largest = max(path.stat().st_size for path in program_cache.iterdir())
+    monkeypatch.setenv("SWAT_JAX_PROGRAM_CACHE_GIB", str(2.5 * largest / 2**30))
+    compile_probe("third")
+    assert len(list(program_cache.iterdir())) == 2, "a program over the limit was kept"
+    assert first.exists(), "the recently loaded program was evicted instead of the least recently used"
+    assert compile_probe("second").traces == 1
+    assert compile_probe("third").traces == 0
+
+
+@pytest.mark.parametrize("size", ["-1", "two", "nan"])
+def test_a_bad_size_limit_names_the_variable_and_the_fix(program_cache, monkeypatch, size):
+    monkeypatch.setenv("SWAT_JAX_PROGRAM_CACHE_GIB", size)
+    with pytest.raises(ValueError, match=rf"SWAT_JAX_PROGRAM_CACHE_GIB='{size}' is not a size in GiB.*unset"):
+        compile_cached("probe", Probe().build, (jnp.ones((2, 2)),), ("recipe",))
+
+
 FRESH_PROCESS = """
 import sys
 import jax.numpy as jnp
