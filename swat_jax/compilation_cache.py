@@ -50,6 +50,10 @@ LIBRARIES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", 
 """The installed distributions whose versions key the program cache (besides this package's source)."""
 
 
+class CacheSettingError(ValueError):
+    """A cache setting (an environment variable) that cannot be used; the message names it and the fix."""
+
+
 def cache_directory() -> Path | None:
     """Where compiled programs are cached, or None when the cache is turned off."""
     if os.environ.get(DISABLE_VARIABLE, "1").strip().lower() in ("0", "false", "no", "off"):
@@ -113,7 +117,7 @@ def compile_cached(
     directory = cache_directory()
     if directory is None or recipe is None or jax.process_count() > 1:
         return lower_built_afresh(build, *args).compile()
-    limit = _size_limit()
+    limit = program_cache_limit()
     path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"
     compiled = _load_program(path)
     if compiled is None:
@@ -243,15 +247,16 @@ def _save_program(compiled: Any, path: Path, limit: int) -> None:
     _evict_least_recently_used(path.parent, limit)
 
 
-def _size_limit() -> int:
-    """The program cache's size limit in bytes, from ``$SWAT_JAX_PROGRAM_CACHE_GIB``."""
+def program_cache_limit() -> int:
+    """The program cache's size limit in bytes, from ``$SWAT_JAX_PROGRAM_CACHE_GIB``; CacheSettingError if
+    that is not a size (commands check it before they write anything)."""
     text = os.environ.get(SIZE_VARIABLE, str(DEFAULT_PROGRAMS_GIB))
     try:
         gib = float(text)
     except ValueError:
         gib = -1.0
     if not gib >= 0:
-        raise ValueError(
+        raise CacheSettingError(
             f"{SIZE_VARIABLE}={text!r} is not a size in GiB: set it to a number such as 0.5 or 4, "
             f"or unset it for the default {DEFAULT_PROGRAMS_GIB:g} GiB"
         )

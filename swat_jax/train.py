@@ -34,6 +34,7 @@ import tyro
 from tqdm import tqdm
 
 from swat_jax.cli import ERROR_STATUS
+from swat_jax.compilation_cache import CacheSettingError, program_cache_limit
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
@@ -175,8 +176,9 @@ def train(
         after_iteration: called with the iteration count after each iteration (tests use it to interrupt).
 
     Raises:
-        ConfigError, CheckpointError, MemoryError: with a message that says what to change.
+        ConfigError, CheckpointError, CacheSettingError, MemoryError: with a message that says what to change.
     """
+    program_cache_limit()
     experiment = Experiment.build(config, _chosen_devices(devices))
     env = experiment.env
     # Shapes only: initialising the actor eagerly compiles each of its operations.
@@ -424,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
             progress=command.progress,
             devices=command.devices,
         )
-    except (ConfigError, CheckpointError, MemoryError) as error:
+    except (ConfigError, CheckpointError, CacheSettingError, MemoryError) as error:
         print(f"error: {error}", file=sys.stderr)
         return ERROR_STATUS
     except KeyboardInterrupt:

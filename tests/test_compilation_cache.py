@@ -19,7 +19,7 @@ import pytest
 from conftest import MORPHOLOGIES, tiny_train_config
 
 from swat_jax import compilation_cache
-from swat_jax.compilation_cache import compile_cached
+from swat_jax.compilation_cache import CacheSettingError, compile_cached
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.runs.experiment import program_recipe
 from swat_jax.td3.learner import TD3Config
@@ -166,7 +166,9 @@ def test_the_least_recently_used_programs_go_when_the_cache_is_full(program_cach
 @pytest.mark.parametrize("size", ["-1", "two", "nan"])
 def test_a_bad_size_limit_names_the_variable_and_the_fix(program_cache, monkeypatch, size):
     monkeypatch.setenv("SWAT_JAX_PROGRAM_CACHE_GIB", size)
-    with pytest.raises(ValueError, match=rf"SWAT_JAX_PROGRAM_CACHE_GIB='{size}' is not a size in GiB.*unset"):
+    with pytest.raises(
+        CacheSettingError, match=rf"SWAT_JAX_PROGRAM_CACHE_GIB='{size}' is not a size in GiB.*unset"
+    ):
         compile_cached("probe", Probe().build, (jnp.ones((2, 2)),), ("recipe",))
 
 
@@ -175,7 +177,7 @@ import sys
 import jax.numpy as jnp
 sys.path.insert(0, {tests!r})
 from test_compilation_cache import Probe
-from swat_jax.compilation_cache import compile_cached
+from swat_jax.compilation_cache import CacheSettingError, compile_cached
 probe = Probe()
 x = jnp.arange(12.0).reshape(4, 3) / 10
 print(compile_cached("probe", probe.build, (x,), ("recipe",))(x).sum(), probe.traces)

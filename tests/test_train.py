@@ -347,6 +347,21 @@ def test_cli_reports_an_existing_run_directory(trained_run, capsys):
     assert "exists; continue it with --resume" in capsys.readouterr().err
 
 
+def test_cli_names_a_bad_program_cache_limit_and_its_fix(tmp_path, hopper_folder, monkeypatch, capsys):
+    monkeypatch.setenv("SWAT_JAX_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.delenv("SWAT_JAX_COMPILATION_CACHE", raising=False)
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setenv("SWAT_JAX_PROGRAM_CACHE_GIB", "lots")
+    config = tiny_train_config(tmp_path / "run", hopper_folder)
+    assert main([*train_flags(config), "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("error: SWAT_JAX_PROGRAM_CACHE_GIB='lots' is not a size in GiB"), error
+    assert "unset it for the default 2 GiB" in error
+    assert not (tmp_path / "run").exists(), (
+        "the run directory was written: the same command now says it exists"
+    )
+
+
 def test_make_train_passes_options_through():
     command = subprocess.run(
         ["make", "-n", "train", "ENV=walker", "ALGO=smp", "SEED=3", "SEEDS=5", "STEPS=1000", "PRESET=fast"],
