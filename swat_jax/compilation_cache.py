@@ -28,6 +28,7 @@ import os
 import pickle
 import re
 import sys
+import time
 import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -221,8 +222,16 @@ def _load_program(path: Path) -> Any:
     except Exception as error:  # a truncated or foreign file: compiled again and overwritten
         print(f"warning: ignoring the unreadable cached program {path} ({error!r})", file=sys.stderr)
         return None
-    path.touch(exist_ok=True)  # recently used: the last to be evicted
+    _mark_used(path)
     return compiled
+
+
+def _mark_used(path: Path) -> None:
+    """Set ``path``'s modification time to now, in nanoseconds: the kernel stamps writes and ``touch`` with
+    a clock that ticks every few milliseconds, so a program saved and another loaded within one tick would
+    tie, and eviction would pick between them by name."""
+    now = time.time_ns()
+    os.utime(path, ns=(now, now))
 
 
 def _save_program(compiled: Any, path: Path, limit: int) -> None:
@@ -244,7 +253,8 @@ def _save_program(compiled: Any, path: Path, limit: int) -> None:
     partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
     partial.write_bytes(data)
     os.replace(partial, path)
-    _evict_least_recently_used(path.parent, limit)
+    _mark_used(path)
+    _evict_least_recently_used(path.parent, limit, keep=path)
 
 
 def program_cache_limit() -> int:
@@ -263,9 +273,9 @@ def program_cache_limit() -> int:
     return int(gib * 2**30)
 
 
-def _evict_least_recently_used(directory: Path, limit: int) -> None:
+def _evict_least_recently_used(directory: Path, limit: int, keep: Path) -> None:
     """Delete the programs of ``directory`` least recently saved or loaded (file modification time) until
-    the rest take at most ``limit`` bytes; the most recent one always stays."""
+    the rest take at most ``limit`` bytes; ``keep`` (the program just saved) always stays."""
     entries = []
     for path in directory.iterdir():
         if path.name.endswith(".partial"):
@@ -276,9 +286,9 @@ def _evict_least_recently_used(directory: Path, limit: int) -> None:
             continue
         entries.append((status.st_mtime_ns, status.st_size, path))
     total = 0
-    for index, (_, size, path) in enumerate(sorted(entries, reverse=True)):
+    for _, size, path in sorted(entries, key=lambda entry: (entry[2] != keep, -entry[0])):
         total += size
-        if total > limit and index > 0:
+        if total > limit and path != keep:
             path.unlink(missing_ok=True)
 
 
