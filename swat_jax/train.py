@@ -188,7 +188,8 @@ def train(
         f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
         f"{env.max_limbs} limbs max, seeds {', '.join(map(str, config.seed_values()))} in one program"
     )
-    if experiment.learner.buckets:
+    # The original schedule updates one body at a time, at the padded limb count.
+    if experiment.learner.buckets and config.iteration.schedule == "all_tasks":
         sizes = ", ".join(f"{len(bucket.tasks)} x {bucket.limbs}" for bucket in experiment.learner.buckets)
         print(f"updates in {len(experiment.learner.buckets)} limb buckets (bodies x limbs): {sizes}")
     print(experiment.placement.describe())

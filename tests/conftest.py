@@ -108,8 +108,12 @@ def train_flags(config) -> list[str]:
                     getattr(value, field.name), getattr(default, field.name), f"{prefix}{field.name}."
                 )
             ]
-        name = "--" + prefix.rstrip(".").replace("_", "-")
-        return [] if value == default else [name, str(value)]
+        name = prefix.rstrip(".").replace("_", "-")
+        if value == default:
+            return []
+        if isinstance(value, bool):
+            return [f"--{name}" if value else f"--no-{name}"]
+        return [f"--{name}", str(value)]
 
     return flags(config, PRESETS["paper"], "")
 

@@ -8,13 +8,19 @@ from scipy.spatial.transform import Rotation
 
 
 def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
-    """BENCHMARK.md's table, written out limb by limb from MuJoCo C data and Jacobians."""
+    """BENCHMARK.md's table, written out limb by limb from MuJoCo C data and Jacobians.
+
+    ``torso_relative_x=False`` does what the original code does: it subtracts the torso's x inside
+    ``data.xpos`` (restored afterwards) before reading positions and Jacobians, so the torso's velocity
+    is taken at that shifted point."""
     rows = []
     torso_x = data.xpos[1, 0]
+    if not torso_relative_x:
+        data.xpos[1, 0] = 0.0
     for limb in range(body.num_limbs):
         b = limb + 1
         position = data.xpos[b].copy()
-        if torso_relative_x or limb == 0:
+        if torso_relative_x:
             position[0] -= torso_x
         # Velocity of the frame origin = frame Jacobian @ qvel (not mj_objectVelocity: that is the COM's).
         jacobian_linear, jacobian_angular = np.zeros((3, model.nv)), np.zeros((3, model.nv))
@@ -34,6 +40,7 @@ def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
             angle = np.degrees(data.qpos[address])
             joint = np.array([(angle - low) / (high - low), (180 + low) / 360, (180 + high) / 360])
         rows.append(np.concatenate([position, np.clip(linear, -10, 10), angular, rotation, one_hot, joint]))
+    data.xpos[1, 0] = torso_x
     return np.array(rows)
 
 

@@ -18,7 +18,8 @@ from swat_jax.td3.iteration import (
 )
 from swat_jax.td3.learner import Learner, TD3Config
 
-CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64)
+CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, schedule="all_tasks")
+"""Every update on a batch from every task (tests/test_update_schedule.py tests the original schedule)."""
 
 
 NETWORK = network_config("amorpheus", width=16, layers=1, feedforward=32)

@@ -157,9 +157,9 @@ class BodyEnv:
         """The state after ``state`` was simulated to ``data`` (kinematics computed): reward, termination,
         truncation and observation of the step."""
         unstable = _unstable(data)
-        forward_reward = self._reward(state.data.qpos[0], data.qpos[0], data.ctrl)
+        forward_reward = self.reward(state.data.qpos[0], data.qpos[0], data.ctrl)
         reward = jnp.where(unstable, 0.0, forward_reward).astype(jnp.float32)
-        terminated = unstable | ~self._alive(data)
+        terminated = unstable | ~self.alive(data)
         length = state.episode_length + 1
         return EnvState(
             data=data,
@@ -184,7 +184,7 @@ class BodyEnv:
             torso_relative_x=self.torso_relative_x,
         ).astype(jnp.float32)
 
-    def _reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
+    def reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
         """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (BENCHMARK.md, "Reward")."""
         reward = self.morphology.family.reward
         forward = (x_after - x_before) / self.morphology.control_dt
@@ -192,8 +192,9 @@ class BodyEnv:
             reward.forward_weight * forward + reward.alive_bonus - reward.control_cost * jnp.sum(control**2)
         )
 
-    def _alive(self, data: mjx.Data) -> jax.Array:
-        """[] bool: every termination condition of the body holds (BENCHMARK.md, "Termination")."""
+    def alive(self, data: mjx.Data) -> jax.Array:
+        """[] bool: every termination condition of the body holds (BENCHMARK.md, "Termination"); ``data``
+        may also be MuJoCo C's ``MjData`` (qpos, qvel and site_xpos are read)."""
         termination = self.morphology.family.termination
         alive = jnp.ones((), bool)
         if termination.height is not None:

@@ -103,13 +103,15 @@ def limb_observation(
         xpos, xquat, cvel: [n, 3], [n, 4], [n, 6] of the limbs (MuJoCo bodies 1..n).
         root_com: [3] centre of mass of the torso's subtree (``subtree_com[1]``).
         torso_relative_x: subtract the torso's x from every limb (the paper's intent). False reproduces
-            the reference code (BENCHMARK.md quirk 1): the torso reads x = 0, every other limb its
-            absolute world x.
+            the original code, which subtracts the torso's x from the torso's position inside the
+            simulator's memory before it reads anything else: the torso reads x = 0, every other limb
+            its absolute world x, and the torso's linear velocity is that of the point (0, y, z) of its
+            frame (v + w x (-x, 0, 0)).
     """
     qpos, xpos, xquat, cvel, root_com = map(jnp.asarray, (qpos, xpos, xquat, cvel, root_com))
     torso_x = xpos[0, 0]
     position = xpos.at[:, 0].add(-torso_x) if torso_relative_x else xpos.at[0, 0].set(0.0)
-    linear, angular = frame_velocities(xpos, cvel, root_com)
+    linear, angular = frame_velocities(xpos if torso_relative_x else position, cvel, root_com)
     angle = jnp.degrees(qpos[layout.joint_qpos_address])
     low, high = layout.joint_range[:, 0], layout.joint_range[:, 1]
     scaled = jnp.where(layout.has_joint, (angle - low) / jnp.where(layout.has_joint, high - low, 1.0), 0.0)

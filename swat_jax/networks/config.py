@@ -39,8 +39,14 @@ class NetworkConfig:
     empty for no relational embedding."""
     relation_bias_in_every_layer: bool = False
     """Add the relational bias to the logits of every layer; the reference adds it to the first only."""
-    max_traversal_positions: int = 32
-    """Rows of each traversal table: traversal positions of every body must be below this."""
+    max_traversal_positions: int = 15
+    """Rows of each traversal table: traversal positions of every body must be below this (the original
+    code's 15 by default, so its trained tables read in one to one)."""
+    final_norm: bool = True
+    """A LayerNorm after the last transformer layer, before the decoder (the original code's
+    ``transformer_norm=1``, its default)."""
+    layer_norm_epsilon: float = 1e-5
+    """Epsilon of every LayerNorm (PyTorch's 1e-5, the original code's; Flax's own default is 1e-6)."""
     decoder_hidden: tuple[int, ...] = ()
     """Hidden widths of the per-limb decoder MLP (ReLU); empty is one linear map, as in AMORPHEUS."""
     message_width: int = 32
@@ -52,6 +58,12 @@ class NetworkConfig:
     max_children: int = 4
     """SMP: child message slots per limb (4 is the most children of any benchmark limb)."""
 
+    @property
+    def sums_limb_values(self) -> bool:
+        """Whether the critic's Q of a body is the sum of its limbs' outputs (SMP, as in the original
+        code) rather than one Q per limb, each with its own TD target (the transformers)."""
+        return self.architecture == "smp"
+
     def __post_init__(self) -> None:
         if self.architecture not in ARCHITECTURES:
             raise ValueError(f"architecture must be one of {ARCHITECTURES}, got {self.architecture!r}")
@@ -59,6 +71,10 @@ class NetworkConfig:
             _require_positive_int(name, getattr(self, name))
         for name in ("message_width", "max_children"):
             _require_positive_int(name, getattr(self, name))
+        if isinstance(self.layer_norm_epsilon, bool) or not (
+            isinstance(self.layer_norm_epsilon, int | float) and self.layer_norm_epsilon > 0
+        ):
+            raise ValueError(f"layer_norm_epsilon must be a positive number, got {self.layer_norm_epsilon!r}")
         if self.width % self.heads != 0:
             raise ValueError(f"width ({self.width}) must be divisible by heads ({self.heads})")
         for name in ("decoder_hidden", "up_hidden", "down_hidden"):

@@ -24,7 +24,7 @@ import numpy as np
 
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.config import NetworkConfig
-from swat_jax.networks.smp import SharedModularPolicy, most_children
+from swat_jax.networks.smp import SharedModularCritic, SharedModularPolicy, most_children
 from swat_jax.networks.transformer import StructureAwareTransformer
 
 Params = Any
@@ -53,7 +53,9 @@ class Actor(nn.Module):
 class Critic(nn.Module):
     """Twin Q networks; each limb's input is its observation concatenated with its action.
 
-    Every limb gets its own Q value (BENCHMARK.md: each limb's Q is regressed on the TD target).
+    Transformers: two independent networks, one Q value per limb, each limb with its own TD target
+    (:mod:`swat_jax.td3.learner`). SMP: one message passing with two heads, whose per-limb outputs sum
+    to the body's Q (:class:`~swat_jax.networks.smp.SharedModularCritic`).
     """
 
     config: NetworkConfig
@@ -62,9 +64,13 @@ class Critic(nn.Module):
     def __call__(
         self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs]."""
-        limb_inputs = jnp.concatenate([limb_obs, actions[..., None]], axis=-1)
-        q_values = (limb_network(self.config, name)(limb_inputs, structure) for name in ("q1", "q2"))
+        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs]
+        (zero on padded limbs)."""
+        if self.config.architecture == "smp":
+            q_values = SharedModularCritic(self.config, name="q")(limb_obs, actions, structure)
+        else:
+            limb_inputs = jnp.concatenate([limb_obs, actions[..., None]], axis=-1)
+            q_values = (limb_network(self.config, name)(limb_inputs, structure) for name in ("q1", "q2"))
         q1, q2 = (jnp.where(structure.limb_mask, q, 0.0) for q in q_values)
         return q1, q2
 

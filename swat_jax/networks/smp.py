@@ -8,6 +8,10 @@ Modules shared by all limbs pass messages both ways along the tree (paper sectio
    reads zeros) and, from that and its own up message, computes one down message per child slot
    and its output value.
 
+The actor reads tanh(concat(up message, parent message)) with its output module; the critic runs one
+message passing over concat(observation, action) for both Q heads, and each head reads
+concat(up message, action, parent message), as in the original SWAT repository's SMP.
+
 Child-slot convention: the children of a limb fill slots 0, 1, ... in increasing limb index, which
 is MJCF pre-order; unused slots are zero. A limb with more than ``max_children`` children would lose
 the extra ones, so :func:`most_children` lets the caller check bodies on the host first.
@@ -146,23 +150,17 @@ def _limb_scan(step: type[nn.Module]) -> type[nn.Module]:
     )
 
 
-class SharedModularPolicy(nn.Module):
-    """SMP's two-pass message passing over one body's padded tree; one value per limb."""
+class MessagePassing(nn.Module):
+    """SMP's two passes over one body's padded tree: every limb's up message and the slot of its
+    parent's down message addressed to it."""
 
     config: NetworkConfig
 
     @nn.compact
-    def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> jax.Array:
-        """One value per limb.
-
-        Args:
-            limb_inputs: [batch, limbs, features] raw per-limb input.
-            structure: one body's slice of a StructureBatch: parents [limbs] (pre-order),
-                limb_mask [limbs] (traversal_positions and relations are not used).
-
-        Returns:
-            [batch, limbs] output of the shared top-down output module (padded limbs unspecified).
-        """
+    def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> tuple[jax.Array, jax.Array]:
+        """limb_inputs [batch, limbs, features]; structure: one body's slice of a StructureBatch
+        (parents [limbs] in pre-order, limb_mask [limbs]) -> (up messages [batch, limbs, message],
+        parent messages [batch, limbs, message])."""
         config = self.config
         batch, limbs = limb_inputs.shape[:2]
         slots = child_slot_matrix(structure.parents, structure.limb_mask, config.max_children)
@@ -178,7 +176,41 @@ class SharedModularPolicy(nn.Module):
             up_messages,
             slots,
         )
-        hidden = jnp.tanh(
-            jnp.concatenate([up_messages, parent_messages(down_messages, slots, config)], axis=-1)
-        )
-        return MLP(config.down_hidden, 1, name="output")(hidden)[..., 0]
+        return up_messages, parent_messages(down_messages, slots, config)
+
+
+class SharedModularPolicy(nn.Module):
+    """SMP's actor network: message passing over the limbs' observations, then a shared output module
+    on tanh(concat(up message, parent message)); one value per limb."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> jax.Array:
+        """limb_inputs [batch, limbs, features], structure: one body's slice -> [batch, limbs] (padded
+        limbs unspecified)."""
+        up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
+        hidden = jnp.tanh(jnp.concatenate([up_messages, from_parent], axis=-1))
+        return MLP(self.config.down_hidden, 1, name="output")(hidden)[..., 0]
+
+
+class SharedModularCritic(nn.Module):
+    """SMP's twin critic as in the original code: ONE message passing over concat(observation, action)
+    serves both Q heads, and each head reads concat(up message, action, parent message) (no tanh).
+    The body's Q is the sum of its limbs' head outputs (the learner sums them,
+    :attr:`NetworkConfig.sums_limb_values`)."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(
+        self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
+    ) -> tuple[jax.Array, jax.Array]:
+        """limb_obs [batch, limbs, features], actions [batch, limbs] -> per-limb (q1, q2), each [batch,
+        limbs] (padded limbs unspecified)."""
+        actions = actions[..., None]
+        limb_inputs = jnp.concatenate([limb_obs, actions], axis=-1)
+        up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
+        head_inputs = jnp.concatenate([up_messages, actions, from_parent], axis=-1)
+        q1, q2 = (MLP(self.config.down_hidden, 1, name=name)(head_inputs)[..., 0] for name in ("q1", "q2"))
+        return q1, q2

@@ -3,7 +3,8 @@
 Every limb is one token. A linear layer shared by all limbs encodes each limb's input, scaled by
 sqrt(width); the traversal-based positional embedding (section 4.1, eq. 3) is added to it; post-
 LayerNorm transformer layers let the limbs attend to each other with a per-head relational bias
-on the logits (section 4.2, eqs. 4-5); a decoder shared by all limbs maps each final token,
+on the logits (section 4.2, eqs. 4-5), followed by one more LayerNorm (the original code's
+``transformer_norm``, :attr:`NetworkConfig.final_norm`); a decoder shared by all limbs maps each final token,
 concatenated with the limb's raw input, to one value per limb.
 
 Padded limbs are masked out as keys, so they never influence a real limb.
@@ -22,13 +23,11 @@ from swat_jax.networks.config import NetworkConfig
 
 
 def traversal_embedding_widths(width: int, count: int) -> tuple[int, ...]:
-    """Split the model width among ``count`` traversal tables as evenly as possible.
-
-    The first tables take the remainder: 128 over three traversals gives (43, 43, 42). (The
-    reference splits 128 as 42/42/44; the parameter count is the same.)
-    """
+    """Split the model width among ``count`` traversal tables as the original code does: each table
+    gets ``width // count`` and the last one also the remainder (128 over three: 42, 42, 44), so the
+    original's trained tables read in one to one."""
     base, remainder = divmod(width, count)
-    return tuple(base + (1 if index < remainder else 0) for index in range(count))
+    return (base,) * (count - 1) + (base + remainder,)
 
 
 class TraversalEmbedding(nn.Module):
@@ -112,10 +111,11 @@ class TransformerLayer(nn.Module):
         attended = MaskedMultiHeadAttention(self.config.width, self.config.heads, name="attention")(
             tokens, limb_mask, relation_bias
         )
-        tokens = nn.LayerNorm(name="attention_norm")(tokens + attended)
+        epsilon = self.config.layer_norm_epsilon
+        tokens = nn.LayerNorm(epsilon, name="attention_norm")(tokens + attended)
         hidden = nn.relu(nn.Dense(self.config.feedforward, name="feedforward_hidden")(tokens))
         transformed = nn.Dense(self.config.width, name="feedforward_output")(hidden)
-        return nn.LayerNorm(name="feedforward_norm")(tokens + transformed)
+        return nn.LayerNorm(epsilon, name="feedforward_norm")(tokens + transformed)
 
 
 class LimbDecoder(nn.Module):
@@ -163,4 +163,6 @@ class StructureAwareTransformer(nn.Module):
         for layer in range(config.layers):
             layer_bias = relation_bias if layer == 0 or config.relation_bias_in_every_layer else None
             tokens = TransformerLayer(config, name=f"layer_{layer}")(tokens, structure.limb_mask, layer_bias)
+        if config.final_norm:
+            tokens = nn.LayerNorm(config.layer_norm_epsilon, name="final_norm")(tokens)
         return LimbDecoder(config.decoder_hidden, name="decoder")(tokens, limb_inputs)

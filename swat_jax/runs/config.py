@@ -3,9 +3,12 @@
 ``python -m swat_jax.train`` parses a :class:`TrainConfig` with tyro, so every field's docstring is its
 ``--help`` line. A preset is a whole :class:`TrainConfig` used as the defaults that flags override:
 
-- ``paper``: one environment copy per task, and one TD3 update (batch 100 from every task) per
-  environment step of each task, as in the paper and the reference code.
-- ``fast``: many copies per task, a larger batch and fewer updates per environment step, for wall clock.
+- ``paper``: the paper's and the reference code's: one environment copy per task and the ``original``
+  update schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100
+  steps per task, task after task takes 100 updates on batches of 100 from its own replay, one Adam step
+  per environment step summed over tasks.
+- ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
+  from every task), with a larger batch and fewer updates per environment step, for wall clock.
 
 Budget convention (BENCHMARK.md): ``steps`` counts environment steps summed over all bodies of the set,
 so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
@@ -14,15 +17,19 @@ so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import typing
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from swat_jax.envs.physics import Implementation
-from swat_jax.morphology import SETS, get_set
+from swat_jax.morphology import SETS, get_set, load
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
-from swat_jax.td3.iteration import IterationConfig
+from swat_jax.networks.smp import most_children
+from swat_jax.td3.iteration import SCHEDULES, IterationConfig
 from swat_jax.td3.learner import TD3Config
 
 Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
@@ -78,7 +85,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = "paper"
-    """Preset that gave this run its defaults: paper (1 copy per body, 1 update per step) or fast (16 copies, batch 256)."""
+    """Preset that gave this run its defaults: paper (1 copy per body, the original schedule's 1 update per step) or fast (16 copies, batch 256, all_tasks updates)."""
     seed: int = 0
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -88,7 +95,7 @@ class TrainConfig:
     copies: int = 1
     """Parallel environment copies per body."""
     iteration: IterationConfig = dataclasses.field(default_factory=IterationConfig)
-    """One jitted iteration: per-copy steps collected (chunk), updates, random steps, noise, replay capacity."""
+    """One jitted iteration: per-copy steps collected (chunk), updates and their schedule, random steps, noise, replay capacity."""
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
     width: int | None = None
@@ -100,19 +107,19 @@ class TrainConfig:
     feedforward: int | None = None
     """Feed-forward width of each layer; None keeps the algorithm's (256)."""
     max_traversal_positions: int | None = None
-    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps 32."""
+    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps the original code's 15."""
     max_children: int | None = None
-    """SMP: child slots per limb, at least the most children of any limb; None keeps 4."""
+    """SMP: child slots per limb, at least the most children of any limb; None takes that most over the training bodies, as the original code does (Hopper++ 1, Walker++ and Cheetah++ 2, the others 4)."""
     smp_hidden: int | None = None
     """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     limb_buckets: int = 3
-    """Update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
+    """With --iteration.schedule all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
     physics: Implementation = "jax"
     """MJX implementation: jax (the physics compiled into the XLA program) or warp (MuJoCo Warp kernels called from it: compiles in seconds, needs pip install -e '.[warp]'; README "How fast")."""
-    torso_relative_x: bool = True
-    """Limb x relative to the torso, as the paper intends; --no-torso-relative-x is the reference's quirk 1."""
-    reference_inorder: bool = False
-    """Use the reference code's in-order traversal for the positional embedding (BENCHMARK.md quirk 2)."""
+    torso_relative_x: bool = False
+    """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
+    reference_inorder: bool = True
+    """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
     log_interval: int = 10_000
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
     eval_interval: int = 0
@@ -152,6 +159,10 @@ class TrainConfig:
             _require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
         for name in ("chunk", "updates", "capacity"):
             _require_positive(f"--iteration.{name}", getattr(self.iteration, name))
+        if self.iteration.schedule not in SCHEDULES:
+            raise ConfigError(
+                f"--iteration.schedule must be one of {', '.join(SCHEDULES)}, got {self.iteration.schedule!r}"
+            )
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
         _require_positive("--eval-episodes", self.eval_episodes)
@@ -177,6 +188,8 @@ class TrainConfig:
     def network(self) -> NetworkConfig:
         """The network of ``algo`` with the sizes given here."""
         sizes = {name: getattr(self, name) for name in NETWORK_SIZES if getattr(self, name) is not None}
+        if self.algo == "smp" and self.max_children is None:
+            sizes["max_children"] = _most_children(self.training_bodies())
         if self.smp_hidden is not None:
             sizes.update(up_hidden=(self.smp_hidden,) * 2, down_hidden=(self.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
@@ -219,15 +232,29 @@ class TrainConfig:
 
 
 PRESETS: dict[str, TrainConfig] = {
-    "paper": TrainConfig(preset="paper", copies=1, iteration=IterationConfig(chunk=100, updates=100)),
+    "paper": TrainConfig(
+        preset="paper",
+        copies=1,
+        iteration=IterationConfig(chunk=100, updates=100, schedule="original"),
+        torso_relative_x=False,
+        reference_inorder=True,
+    ),
     "fast": TrainConfig(
         preset="fast",
         copies=16,
-        iteration=IterationConfig(chunk=32, updates=64),
+        iteration=IterationConfig(chunk=32, updates=64, schedule="all_tasks"),
         td3=TD3Config(batch_size=256),
+        torso_relative_x=True,
+        reference_inorder=False,
     ),
 }
 """The defaults each preset gives every flag."""
+
+
+@functools.cache
+def _most_children(bodies: tuple[str, ...]) -> int:
+    """The most children of any limb of these bodies (at least 1): SMP's child slots for them."""
+    return max(1, *(most_children(np.asarray(load(body).parents)) for body in bodies))
 
 
 def _absolute_if_path(body: str) -> str:

@@ -111,7 +111,8 @@ class MetricsWindow:
         }
 
     def add(self, metrics: dict[str, Any]) -> None:
-        """One iteration's metrics: losses [S, updates] and ``episodes`` (EpisodeStats of [S, K] arrays)."""
+        """One iteration's metrics: losses [S, U], one per update (U: bodies x updates with the original
+        schedule, updates with all_tasks), and ``episodes`` (EpisodeStats of [S, K] arrays)."""
         for name in LOSSES:
             self.sums[name] += np.mean(np.asarray(metrics[name]), axis=-1)
         episodes = metrics["episodes"]

@@ -1,12 +1,16 @@
 """One training iteration as one jitted function: collect a chunk of steps in every task, then update.
 
-    state -> lax.scan(act + env.step + insert, chunk steps) -> lax.scan(sample + TD3 update, updates)
+    state -> lax.scan(act + env.step + insert, chunk steps) -> the schedule's TD3 updates:
+        original:  lax.scan over tasks (lax.scan(sample the task's ring + TD3 update, updates))
+        all_tasks: lax.scan(sample every ring + TD3 update, updates)
 
-Tasks are the batch axis everywhere: the multi-task environment steps every body's copies, the replay
-buffer holds one ring per task, and the update vmaps its losses over tasks. Exploration follows the
-paper: uniform random actions for each task's first ``random_steps`` steps, then the policy plus
-Gaussian noise (std ``exploration_noise``), clipped to [-1, 1]. Updates start once every task's buffer
-holds a full batch.
+Tasks are the batch axis of collection: the multi-task environment steps every body's copies and the
+replay buffer holds one ring per task. The update schedule (:attr:`IterationConfig.schedule`) is the
+reference code's by default: the tasks one after another, each taking its run of updates on its own
+batches (its ``TD3.train``); ``all_tasks`` instead vmaps every update's losses over all tasks. Exploration
+follows the paper: uniform random actions for each task's first ``random_steps`` steps, then the policy
+plus Gaussian noise (std ``exploration_noise``), clipped to [-1, 1]. Updates start once every task's
+buffer holds a full batch.
 
 Seeds are one more batch axis: :func:`make_seeded_train_iteration` runs the iteration over a leading
 seed axis of the state (:data:`SEED_AXES`), so N independent runs are one compiled program.
@@ -16,8 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import typing
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
@@ -66,14 +71,20 @@ becoming selects that compute both sides for every seed.
 """
 
 
+Schedule = Literal["original", "all_tasks"]
+SCHEDULES: tuple[str, ...] = typing.get_args(Schedule)
+
+
 @dataclasses.dataclass(frozen=True)
 class IterationConfig:
-    """Sizes of one iteration."""
+    """Sizes of one iteration and the order of its updates."""
 
     chunk: int = 100
     """Environment steps per copy collected per iteration."""
     updates: int = 100
-    """TD3 updates per iteration (each samples ``batch_size`` transitions from every task)."""
+    """TD3 updates per iteration: per body with the original schedule (chunk x copies of them give one Adam step per environment step, as the reference code), in all with all_tasks."""
+    schedule: Schedule = "original"
+    """Update order after collecting. original (the reference code's): body after body, each takes its updates on batches from its own replay alone, one Adam step each, with the delayed actor step in the first of every policy_delay of them. all_tasks: each update is one Adam step on the mean loss over a batch from every body."""
     random_steps: int = 10_000
     """Per task: steps with uniform random actions before the policy acts."""
     exploration_noise: float = 0.126
@@ -127,8 +138,10 @@ def make_train_iteration(
     ``structure`` is the bodies' StructureBatch [K, ...] padded to ``env.max_limbs``, in ``env``'s body
     order (the task set's, :func:`swat_jax.networks.task_set`).
 
-    metrics: per-update critic and actor losses [updates], per-task rewards of the chunk [chunk, K, n], and
-    ``episodes``, the sums over the episodes each task finished during this iteration (EpisodeStats, [K]).
+    metrics: per-update critic and actor losses in the order the updates ran ([K * updates] with the
+    original schedule, [updates] with all_tasks; :func:`make_updates`), per-task rewards of the chunk
+    [chunk, K, n], and ``episodes``, the sums over the episodes each task finished during this iteration
+    (EpisodeStats, [K]).
     """
     return _make_iteration(env, structure, learner, config, seeded=False)
 
@@ -184,6 +197,119 @@ def _seed_axis(tree: Any, axes: Any, change: Callable[[jax.Array], jax.Array]) -
     )
 
 
+Updated = tuple[LearnerState, dict[str, jax.Array]]
+"""A learner state after updates, and their losses."""
+UpdatePhase = Callable[[LearnerState, ReplayBuffer, jax.Array], Updated]
+"""``updates(learner_state, buffer, rng) -> (learner_state, metrics)``: the TD3 updates of one iteration."""
+
+
+def make_updates(
+    structure: StructureBatch, learner: Learner, config: IterationConfig, seeds: int | None = None
+) -> UpdatePhase:
+    """The TD3 updates of one iteration, ``updates(learner_state, buffer, rng)``, in the order of
+    ``config.schedule``:
+
+    - ``original``, the reference code's ``TD3.train``: the K tasks in ``structure``'s order, each taking
+      ``config.updates`` consecutive updates on batches from its own ring alone (one-task batches and
+      structures [1, ...] at the padded limb count, so without ``learner.buckets``); update ``it`` of a
+      task's run (from 0, for every task and iteration) takes the actor and target step when
+      ``it % policy_delay == 0``, so the first of every run does. Update ``it`` of task k uses key
+      ``jax.random.split(rng, (K, updates))[k, it]``.
+    - ``all_tasks``: ``config.updates`` updates, each one Adam step on the mean over tasks of every
+      task's loss on its own batch, the actor stepping every ``policy_delay``-th update
+      (:meth:`Learner.update`); update i uses key ``jax.random.split(rng, (updates,))[i]``.
+
+    An update's key splits into the key of its replay sample and that of its target smoothing noise; an
+    update before the buffer holds ``batch_size`` rows per task leaves the learner as it is (losses 0).
+
+    Args:
+        structure: [K, ...] the tasks' structure, padded to the buffer's limb count.
+        seeds: the size of the leading seed axis of the learner state, buffer and ``rng``
+            (:data:`SEED_AXES`); None for a state without one.
+
+    metrics: ``critic_loss`` and ``actor_loss`` per update, in the order the updates ran: [K * updates]
+    (task after task) or [updates], behind a leading [S] with a seed axis.
+    """
+    structure = jax.tree_util.tree_map(jnp.asarray, structure)
+    num_tasks = structure.limb_mask.shape[0]
+    over_seeds = _seed_map(seeds)
+    batch_size = learner.config.batch_size
+    task_learner = dataclasses.replace(learner, buckets=())
+
+    def once_filled(
+        buffer: ReplayBuffer, step: Callable[[LearnerState], Updated], learner_state: LearnerState
+    ) -> Updated:
+        """``step(learner_state)`` once the buffer holds a batch, else the state unchanged with zero losses."""
+        skipped = {"critic_loss": jnp.zeros(()), "actor_loss": jnp.zeros(())}
+        return jax.lax.cond(buffer.size >= batch_size, step, lambda s: (s, skipped), learner_state)
+
+    def all_tasks_update(learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array) -> Updated:
+        """One update of one seed on a batch from every task's ring."""
+        sample_key, noise_key = jax.random.split(rng)
+        batch = sample(buffer, sample_key, batch_size)
+        return once_filled(buffer, lambda s: learner.update(s, batch, structure, noise_key), learner_state)
+
+    def task_update(
+        learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array, task: jax.Array, delayed: jax.Array
+    ) -> Updated:
+        """One update of one seed on a batch from task ``task``'s ring alone; ``delayed`` [] bool: with the
+        actor and target step."""
+        sample_key, noise_key = jax.random.split(rng)
+        batch = _sample_task(buffer, task, sample_key, batch_size)
+        task_structure = jax.tree.map(lambda leaf: leaf[task][None], structure)
+        return once_filled(
+            buffer, lambda s: task_learner.update(s, batch, task_structure, noise_key, delayed), learner_state
+        )
+
+    seeded_axes = (SEED_AXES.learner, SEED_AXES.buffer, 0)
+    all_tasks_updated = over_seeds(all_tasks_update, in_axes=seeded_axes, out_axes=(SEED_AXES.learner, 0))
+    task_updated = over_seeds(
+        task_update, in_axes=(*seeded_axes, None, None), out_axes=(SEED_AXES.learner, 0)
+    )
+
+    def all_tasks(learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array) -> Updated:
+        """keys [updates, (S,) 2] -> metrics [updates, (S)]."""
+        return jax.lax.scan(lambda s, key: all_tasks_updated(s, buffer, key), learner_state, keys)
+
+    def original(learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array) -> Updated:
+        """keys [K, updates, (S,) 2] -> metrics [K, updates, (S)]."""
+
+        def task_run(learner_state: LearnerState, task_and_keys: tuple[jax.Array, jax.Array]) -> Updated:
+            task, task_keys = task_and_keys
+
+            def step(learner_state: LearnerState, it_and_key: tuple[jax.Array, jax.Array]) -> Updated:
+                it, key = it_and_key
+                delayed = it % learner.config.policy_delay == 0
+                return task_updated(learner_state, buffer, key, task, delayed)
+
+            return jax.lax.scan(step, learner_state, (jnp.arange(config.updates), task_keys))
+
+        return jax.lax.scan(task_run, learner_state, (jnp.arange(num_tasks), keys))
+
+    run, shape = {
+        "original": (original, (num_tasks, config.updates)),
+        "all_tasks": (all_tasks, (config.updates,)),
+    }[config.schedule]
+    seed_dims = 0 if seeds is None else 1
+
+    def updates(learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array) -> Updated:
+        keys = over_seeds(lambda key: jax.random.split(key, shape))(rng)
+        # The scans run over the schedule's axes: the seed axis goes behind them, and in front again after.
+        keys = jnp.moveaxis(keys, 0, len(shape)) if seed_dims else keys
+        learner_state, metrics = run(learner_state, buffer, keys)
+        flat = jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[len(shape) :]), metrics)
+        return learner_state, jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, seed_dims), flat)
+
+    return updates
+
+
+def _sample_task(buffer: ReplayBuffer, task: jax.Array, rng: jax.Array, batch_size: int) -> Transitions:
+    """[1, batch_size, ...] transitions of task ``task``'s ring: the rows :func:`sample` draws from a buffer
+    of that ring alone, gathered from the whole buffer (slicing the ring out first would copy it)."""
+    rows = jax.random.randint(rng, (1, batch_size), 0, jnp.maximum(buffer.size, 1))
+    return jax.tree.map(lambda stored: stored[task, rows], buffer.data)
+
+
 def _make_iteration(
     env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig, seeded: bool
 ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
@@ -200,28 +326,13 @@ def _make_iteration(
         action = jnp.where(env_steps < config.random_steps, uniform, jnp.clip(policy + noise, -1.0, 1.0))
         return jnp.where(mask, action, 0.0)
 
-    def update(
-        learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array
-    ) -> tuple[LearnerState, dict[str, jax.Array]]:
-        """One TD3 update of one seed, once its buffer holds a batch."""
-        sample_key, noise_key = jax.random.split(rng)
-        batch = sample(buffer, sample_key, learner.config.batch_size)
-        return jax.lax.cond(
-            buffer.size >= learner.config.batch_size,
-            lambda s: learner.update(s, batch, structure, noise_key),
-            lambda s: (s, {"critic_loss": jnp.zeros(()), "actor_loss": jnp.zeros(())}),
-            learner_state,
-        )
-
     def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         seeds = state.rng.shape[:1] if seeded else ()
         over_seeds = _seed_map(seeds[0] if seeds else None)
         split = over_seeds(lambda key: tuple(jax.random.split(key)))
         inserted = over_seeds(insert, in_axes=(SEED_AXES.buffer, 0), out_axes=SEED_AXES.buffer)
         acted = over_seeds(act, in_axes=(0, 0, None, 0))
-        updated = over_seeds(
-            update, in_axes=(SEED_AXES.learner, SEED_AXES.buffer, 0), out_axes=(SEED_AXES.learner, 0)
-        )
+        updates = make_updates(structure, learner, config, seeds[0] if seeds else None)
 
         def collect(state: TrainState, _) -> tuple[TrainState, jax.Array]:
             rng, act_key = split(state.rng)
@@ -242,21 +353,13 @@ def _make_iteration(
             )
             return next_state, result.reward
 
-        def update_step(carry: tuple[LearnerState, ReplayBuffer], rng: jax.Array):
-            learner_state, buffer = carry
-            learner_state, metrics = updated(learner_state, buffer, rng)
-            return (learner_state, buffer), metrics
-
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, seeds)))
         state, rewards = jax.lax.scan(collect, state, None, length=config.chunk)
         rng, update_key = split(state.rng)
-        update_keys = over_seeds(lambda key: jax.random.split(key, config.updates))(update_key)
-        (learner_state, _), metrics = jax.lax.scan(
-            update_step, (state.learner, state.buffer), jnp.moveaxis(update_keys, len(seeds), 0)
-        )
+        learner_state, metrics = updates(state.learner, state.buffer, update_key)
         # Scans stack their outputs in front: the seed axis goes back first.
         metrics = {
-            **jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, len(seeds)), metrics),
+            **metrics,
             "reward": jnp.moveaxis(rewards, 0, len(seeds)),
             "episodes": state.env.episodes,
         }

@@ -4,14 +4,20 @@ Each task's loss is computed with ``vmap`` over the task axis (its own structure
 limbs are masked out, the losses are averaged over tasks, and one gradient step updates the shared
 parameters. With limb buckets, tasks of similar size are computed together at their own limb count
 instead of the set's largest (the same losses, fewer FLOPs: padded limbs never change a real limb's
-output). The critic gives one Q value per limb; every limb's Q is regressed on the task's TD target
+output). A task of one body gives exactly the original code's update of that body.
 
-    y = r + discount * (1 - terminated) * min(mean_l Q1'(s', a'), mean_l Q2'(s', a'))
+The transformer critics give one Q value per limb and every limb is regressed on its own TD target, as
+the original SWAT code does (its ``TD3.py``):
+
+    y_l = r + discount * (1 - terminated) * min(Q1'_l(s', a'), Q2'_l(s', a')),
+    loss = mean over batch and real limbs of (Q1_l - y_l)^2 + (Q2_l - y_l)^2
 
 with a' the target policy's action plus clipped Gaussian noise (target policy smoothing), so truncated
-transitions bootstrap and terminated ones do not. The actor maximises the mean over limbs of Q1 and is
-updated every ``policy_delay`` critic updates (masked with optax, no Python branch); target networks
-follow with rate ``tau`` after each actor update.
+transitions bootstrap and terminated ones do not. SMP's critic sums its limbs' values into one Q per
+sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same formulas then hold with
+one "limb". The actor maximises the mean over limbs (SMP: the sum) of Q1 and is updated every
+``policy_delay`` critic updates, or when the caller says so (``delayed``: the original schedule's phase);
+target networks follow with rate ``tau`` after each actor update.
 """
 
 from __future__ import annotations
@@ -95,24 +101,46 @@ class Learner:
         )
 
     def update(
-        self, state: LearnerState, batch: Transitions, structure: StructureBatch, rng: jax.Array
+        self,
+        state: LearnerState,
+        batch: Transitions,
+        structure: StructureBatch,
+        rng: jax.Array,
+        delayed: jax.Array | None = None,
     ) -> tuple[LearnerState, dict[str, jax.Array]]:
-        """One critic step, and an actor + target step every policy_delay-th call.
+        """One critic step, and an actor + target step every policy_delay-th call (or when ``delayed``).
 
         Args:
             batch: [T, B, ...] transitions, one slice per task.
             structure: [T, ...] structure of the tasks.
             rng: key for the target policy smoothing noise.
+            delayed: [] bool: take the actor and target step in this update; None: in every
+                ``policy_delay``-th update (``state.updates + 1`` a multiple of it).
         """
+        noise = jax.random.normal(rng, batch.action.shape)
+        return self.update_with_noise(state, batch, structure, noise, delayed)
+
+    def update_with_noise(
+        self,
+        state: LearnerState,
+        batch: Transitions,
+        structure: StructureBatch,
+        noise: jax.Array,
+        delayed: jax.Array | None = None,
+    ) -> tuple[LearnerState, dict[str, jax.Array]]:
+        """:meth:`update` with the target policy smoothing noise given: ``noise`` [T, B, L] standard
+        normal, scaled by ``policy_noise`` and clipped to ``noise_clip`` here (the parity tests feed the
+        original code's draws)."""
         critic_loss, critic_grads = jax.value_and_grad(self._critic_loss)(
-            state.critic_params, state, batch, structure, rng
+            state.critic_params, state, batch, structure, noise
         )
         critic_updates, critic_optimizer = self.optimizer().update(
             critic_grads, state.critic_optimizer, state.critic_params
         )
         critic_params = optax.apply_updates(state.critic_params, critic_updates)
 
-        delayed = (state.updates + 1) % self.config.policy_delay == 0
+        if delayed is None:
+            delayed = (state.updates + 1) % self.config.policy_delay == 0
         actor_params, actor_optimizer, actor_loss = jax.lax.cond(
             delayed,
             self.actor_step,
@@ -155,10 +183,8 @@ class Learner:
         state: LearnerState,
         batch: Transitions,
         structure: StructureBatch,
-        rng: jax.Array,
+        noise: jax.Array,
     ) -> jax.Array:
-        keys = jax.random.split(rng, batch.reward.shape[0])
-        noise = jax.vmap(lambda key: jax.random.normal(key, batch.action.shape[1:]))(keys)
         per_task = jax.vmap(
             lambda batch, structure, noise: self._task_critic_loss(
                 critic_params, state.target_actor_params, state.target_critic_params, batch, structure, noise
@@ -175,30 +201,44 @@ class Learner:
         structure: StructureBatch,
         noise: jax.Array,
     ) -> jax.Array:
-        """Mean squared TD error over the task's real limbs and batch [B, L]; ``noise`` [B, L] standard normal."""
+        """Mean squared TD error of one task over its batch and real limbs (SMP: over its batch);
+        ``noise`` [B, L] standard normal."""
         mask = structure.limb_mask
         noise = jnp.clip(self.config.policy_noise * noise, -self.config.noise_clip, self.config.noise_clip)
         next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
         next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
-        target_q1, target_q2 = self.critic.apply(
+        target_q1, target_q2 = self._q_values(
             target_critic_params, batch.next_observation, next_action, structure
         )
-        next_value = jnp.minimum(_limb_mean(target_q1, mask), _limb_mean(target_q2, mask))
-        target = batch.reward + self.config.discount * (1.0 - batch.terminated) * next_value
-        target = jax.lax.stop_gradient(target)[:, None]
-        q1, q2 = self.critic.apply(critic_params, batch.observation, batch.action, structure)
+        next_value = jnp.minimum(target_q1, target_q2)
+        target = batch.reward[:, None] + self.config.discount * (1.0 - batch.terminated[:, None]) * next_value
+        target = jax.lax.stop_gradient(target)
+        q1, q2 = self._q_values(critic_params, batch.observation, batch.action, structure)
         squared = (q1 - target) ** 2 + (q2 - target) ** 2
-        return jnp.sum(jnp.where(mask, squared, 0.0)) / (jnp.sum(mask) * batch.reward.shape[0])
+        return _masked_mean(squared, self._value_mask(mask))
 
     def _actor_loss(
         self, actor_params: Params, critic_params: Params, batch: Transitions, structure: StructureBatch
     ) -> jax.Array:
         def task_loss(batch: Transitions, structure: StructureBatch) -> jax.Array:
             action = self.actor.apply(actor_params, batch.observation, structure)
-            q1, _ = self.critic.apply(critic_params, batch.observation, action, structure)
-            return -jnp.mean(_limb_mean(q1, structure.limb_mask))
+            q1, _ = self._q_values(critic_params, batch.observation, action, structure)
+            return -_masked_mean(q1, self._value_mask(structure.limb_mask))
 
         return self._task_mean(jax.vmap(task_loss), batch, structure)
+
+    def _q_values(
+        self, critic_params: Params, observation: jax.Array, action: jax.Array, structure: StructureBatch
+    ) -> tuple[jax.Array, jax.Array]:
+        """(Q1, Q2), each [B, L] per limb, or [B, 1] when the critic sums its limbs' values (SMP)."""
+        q1, q2 = self.critic.apply(critic_params, observation, action, structure)
+        if self.critic.module.config.sums_limb_values:
+            return jnp.sum(q1, axis=-1, keepdims=True), jnp.sum(q2, axis=-1, keepdims=True)
+        return q1, q2
+
+    def _value_mask(self, limb_mask: jax.Array) -> jax.Array:
+        """[L] real limbs, or [1] True for a critic that sums its limbs' values."""
+        return jnp.ones(1, bool) if self.critic.module.config.sums_limb_values else limb_mask
 
     def _task_mean(
         self,
@@ -224,6 +264,6 @@ class Learner:
         return total / batch.reward.shape[0]
 
 
-def _limb_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
-    """[B, L] -> [B]: mean over the real limbs."""
-    return jnp.sum(jnp.where(mask, values, 0.0), axis=-1) / jnp.sum(mask)
+def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
+    """[B, L] values, [L] mask -> [] mean over the batch and the masked-in columns."""
+    return jnp.sum(jnp.where(mask, values, 0.0)) / (jnp.sum(mask) * values.shape[0])

@@ -1,0 +1,282 @@
+"""Parity with the original SWAT code: the same weights and inputs give the same numbers.
+
+The fixtures in ``tests/data/original`` were written by the original PyTorch code itself
+(``tests/original_parity_data.py``, run in its own environment; no PyTorch is needed here). Its
+weights are read in with :mod:`swat_jax.networks.original_weights`, the converter's mapping, and every
+comparison is at float32 tolerance.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from original_parity_data import filled_state_dict, flat_ids
+
+from swat_jax.envs.observation import limb_observation
+from swat_jax.morphology import RELATION_NAMES, load, pad_structures
+from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.networks.original_weights import ORIGINAL_RELATION_ORDER, actor_params, critic_params
+from swat_jax.td3.learner import Learner, LearnerState, TD3Config
+from swat_jax.td3.replay import Transitions
+
+DATA = np.load(Path(__file__).parent / "data" / "original" / "networks.npz")
+UPDATES = np.load(Path(__file__).parent / "data" / "original" / "updates.npz")
+BODIES = tuple(sorted({key.split("/")[1] for key in DATA.files if key.startswith("structure/")}))
+TOLERANCE = {"rtol": 1e-4, "atol": 1e-5}
+ARCHITECTURES = {"swat": "swat", "amorpheus": "amorpheus", "smp": "smp"}
+
+
+def config(architecture: str, data, max_children: int):
+    return network_config(
+        architecture,
+        width=int(data["attention_embedding_size"]),
+        heads=int(data["attention_heads"]),
+        feedforward=int(data["attention_hidden_size"]),
+        layers=int(data["attention_layers"]),
+        message_width=int(data["message_width"]),
+        max_children=max_children,
+    )
+
+
+def shapes(data, prefix: str) -> dict[str, tuple[int, ...]]:
+    return {
+        str(key): tuple(int(size) for size in str(shape).split(","))
+        for key, shape in zip(data[f"{prefix}/keys"], data[f"{prefix}/shapes"], strict=True)
+    }
+
+
+def stored_or_filled(data, architecture: str, state: str, network: str, seed: int) -> dict[str, np.ndarray]:
+    """The state dict of one original network: stored (``init``) or filled the generator's way."""
+    if state == "filled":
+        return filled_state_dict(shapes(data, f"{architecture}/{network}"), seed)
+    prefix = f"{architecture}/{state}/{network}/"
+    return {key[len(prefix) :]: data[key] for key in data.files if key.startswith(prefix)}
+
+
+STRUCTURE = pad_structures([load(body) for body in BODIES], reference_inorder=True)
+LIMBS = STRUCTURE.limb_mask.shape[1]
+
+
+def padded_inputs(body: str) -> tuple[np.ndarray, np.ndarray]:
+    """The fixture's observation [B, limbs * F] and action [B, limbs] of ``body``, padded to [B, L, F], [B, L]."""
+    observation, action = DATA[f"inputs/{body}/observation"], DATA[f"inputs/{body}/action"]
+    limbs = action.shape[1]
+    observation = observation.reshape(observation.shape[0], limbs, -1)
+    pad = LIMBS - limbs
+    return np.pad(observation, ((0, 0), (0, pad), (0, 0))), np.pad(action, ((0, 0), (0, pad)))
+
+
+@pytest.mark.parametrize("body", BODIES)
+def test_structure_inputs_equal_the_original(body):
+    row = BODIES.index(body)
+    limbs = int(STRUCTURE.num_limbs[row])
+    parents = DATA[f"structure/{body}/parents"]
+    np.testing.assert_array_equal(STRUCTURE.parents[row, :limbs], np.where(parents < 0, -1, parents))
+    np.testing.assert_array_equal(
+        STRUCTURE.traversal_positions[row, :limbs], DATA[f"structure/{body}/traversals"]
+    )
+    channels = [ORIGINAL_RELATION_ORDER.index(name) for name in RELATION_NAMES]
+    np.testing.assert_allclose(
+        STRUCTURE.relations[row, :limbs, :limbs],
+        DATA[f"structure/{body}/relations"][..., channels],
+        **TOLERANCE,
+    )
+
+
+@functools.cache
+def network_outputs(architecture: str, state: str):
+    """Our actor's actions and critic's (q1, q2) for every fixture body, [K, B, L] each."""
+    net_config = config(architecture, DATA, int(DATA["max_children"]))
+    actor, critic = make_actor_critic(net_config, int(DATA["features"]))
+    actor_weights = actor_params(stored_or_filled(DATA, architecture, state, "actor", 1), net_config)
+    critic_weights = critic_params(stored_or_filled(DATA, architecture, state, "critic", 2), net_config)
+    inputs = [padded_inputs(body) for body in BODIES]
+    observation = jnp.asarray(np.stack([obs for obs, _ in inputs]))
+    action = jnp.asarray(np.stack([act for _, act in inputs]))
+
+    @jax.jit
+    def outputs(observation, action, structure):
+        over_bodies = functools.partial(jax.vmap, in_axes=(None, 0, 0))
+        actions = over_bodies(actor.apply)(actor_weights, observation, structure)
+        q1, q2 = jax.vmap(critic.apply, in_axes=(None, 0, 0, 0))(
+            critic_weights, observation, action, structure
+        )
+        return actions, q1, q2
+
+    return net_config, jax.device_get(outputs(observation, action, STRUCTURE))
+
+
+NETWORK_CASES = [
+    (architecture, state)
+    for architecture in ARCHITECTURES
+    for state in (("filled",) if architecture == "smp" else ("init", "filled"))
+]
+
+
+@pytest.mark.parametrize(("architecture", "state"), NETWORK_CASES)
+def test_networks_equal_the_original(architecture, state):
+    """Actor actions and both critics' Q on five bodies of every family; SMP's Q is the body's sum."""
+    net_config, (actions, q1, q2) = network_outputs(architecture, state)
+    for row, body in enumerate(BODIES):
+        limbs = int(STRUCTURE.num_limbs[row])
+        expected = DATA[f"{architecture}/{state}/{body}/actor"]
+        np.testing.assert_allclose(actions[row, :, :limbs], expected, **TOLERANCE, err_msg=f"{body} actor")
+        for name, ours in (("q1", q1), ("q2", q2)):
+            ours = ours[row, :, :limbs]
+            if net_config.sums_limb_values:
+                ours = ours.sum(axis=-1, keepdims=True)
+            expected = DATA[f"{architecture}/{state}/{body}/{name}"]
+            np.testing.assert_allclose(ours, expected, **TOLERANCE, err_msg=f"{body} {name}")
+
+
+def probed(params, ids_tree, probe_ids: np.ndarray) -> np.ndarray:
+    """Our parameters at the original's flat positions ``probe_ids`` (NaN where we have no such weight:
+    the key projection's and g's biases, which cancel in the softmax)."""
+    values = np.full(probe_ids.shape, np.nan)
+    for value, ids in zip(jax.tree.leaves(params), jax.tree.leaves(ids_tree), strict=True):
+        ids = np.asarray(ids).astype(np.int64).ravel()
+        where = np.searchsorted(probe_ids, ids)
+        hit = (where < probe_ids.size) & (probe_ids[np.minimum(where, probe_ids.size - 1)] == ids)
+        values[where[hit]] = np.asarray(value).ravel()[hit]
+    return values
+
+
+@pytest.mark.parametrize("architecture", ["swat", "smp"])
+def test_two_td3_updates_equal_the_original(architecture):
+    """Critic step, delayed actor step and target updates: the original takes the actor step in the first
+    update of a body's run (its loop index 0), not the second; every limb has its own TD target (SMP: the
+    sample's summed Q)."""
+    data = UPDATES
+    net_config = config(architecture, data, int(data[f"{architecture}/max_children"]))
+    actor, critic = make_actor_critic(net_config, int(data["features"]))
+    learner = Learner(actor, critic, TD3Config(batch_size=int(data["batch/0/reward"].shape[0])))
+    structure = pad_structures([load(str(data["body"]))], reference_inorder=True)
+    limbs = int(structure.num_limbs[0])
+    weights = {
+        name: filled_state_dict(shapes(data, f"{architecture}/{name}"), seed)
+        for name, seed in (("actor", 1), ("critic", 2))
+    }
+    to_params = {"actor": actor_params, "critic": critic_params}
+    params = {name: to_params[name](weights[name], net_config) for name in weights}
+    ids = {
+        name: to_params[name](flat_ids(shapes(data, f"{architecture}/{name}")), net_config)
+        for name in weights
+    }
+    optimizer = learner.optimizer()
+    state = LearnerState(
+        actor_params=params["actor"],
+        critic_params=params["critic"],
+        target_actor_params=params["actor"],
+        target_critic_params=params["critic"],
+        actor_optimizer=optimizer.init(params["actor"]),
+        critic_optimizer=optimizer.init(params["critic"]),
+        updates=jnp.zeros((), jnp.int32),
+    )
+    update = jax.jit(learner.update_with_noise)
+    for step in range(2):
+        batch = Transitions(
+            observation=data[f"batch/{step}/observation"].reshape(-1, limbs, int(data["features"]))[None],
+            action=data[f"batch/{step}/action"][None],
+            reward=data[f"batch/{step}/reward"][:, 0][None],
+            next_observation=data[f"batch/{step}/next_observation"].reshape(-1, limbs, int(data["features"]))[
+                None
+            ],
+            terminated=data[f"batch/{step}/done"][:, 0][None],
+        )
+        noise = data[f"{architecture}/noise/{step}"] / learner.config.policy_noise
+        state, _ = update(state, batch, structure, jnp.asarray(noise)[None], jnp.asarray(step % 2 == 0))
+        for name, ours in (
+            ("actor", state.actor_params),
+            ("critic", state.critic_params),
+            ("target_actor", state.target_actor_params),
+            ("target_critic", state.target_critic_params),
+        ):
+            base = name.removeprefix("target_")
+            probe_ids = data[f"{architecture}/{base}/probe_ids"]
+            values = probed(ours, ids[base], probe_ids)
+            expected = data[f"{architecture}/after/{step}/{name}"]
+            present = ~np.isnan(values)
+            assert present.mean() > 0.9, f"{name}: only {present.mean():.0%} of the probes map to our weights"
+            np.testing.assert_allclose(
+                values[present], expected[present], **TOLERANCE, err_msg=f"update {step + 1}, {name}"
+            )
+
+
+ENVIRONMENTS = np.load(Path(__file__).parent / "data" / "original" / "environments.npz")
+ENVIRONMENT_BODIES = sorted({key.split("/")[0] for key in ENVIRONMENTS.files})
+CONTACT_DIFFERENCES = {"hopper_3", "hopper_4", "hopper_5", "nervenet_hopper"}
+"""Bodies on which MuJoCo 2.3.3 (the original's) and 3.17 (ours) give different foot contacts on some
+steps: the joint velocities after such a step differ by up to about 0.2, an engine difference (the
+compiled models are the same)."""
+
+
+def recorded(body: str, key: str) -> np.ndarray:
+    return ENVIRONMENTS[f"{body}/{key}"]
+
+
+def test_the_fixtures_cover_every_benchmark_body():
+    assert len(ENVIRONMENT_BODIES) == 43
+
+
+@functools.cache
+def body_env(body: str):
+    from swat_jax.envs import BodyEnv
+
+    return BodyEnv(body, torso_relative_x=False)
+
+
+@pytest.mark.parametrize("body", ENVIRONMENT_BODIES)
+def test_observation_reward_and_done_equal_the_original(body):
+    """From the state the original's step ended in: the observation its kinematics give (the original's
+    in-place torso-x write and its in-order included), the reward and the termination."""
+    env = body_env(body)
+    model = env.mj_model
+    data = mujoco.MjData(model)
+    limbs = slice(1, env.num_limbs + 1)
+    for index in range(len(recorded(body, "reward"))):
+        data.qpos[:], data.qvel[:] = recorded(body, "qpos_after")[index], recorded(body, "qvel_after")[index]
+        data.ctrl[:] = recorded(body, "action")[index]
+        mujoco.mj_forward(model, data)
+        ours = limb_observation(
+            env.layout,
+            data.qpos,
+            data.xpos[limbs],
+            data.xquat[limbs],
+            data.cvel[limbs],
+            data.subtree_com[1],
+            torso_relative_x=False,
+        )
+        expected = recorded(body, "obs_fresh")[index].reshape(env.num_limbs, -1)
+        np.testing.assert_allclose(np.asarray(ours), expected, **TOLERANCE, err_msg=f"{body} step {index}")
+        reward = env.reward(recorded(body, "qpos")[index][0], data.qpos[0], data.ctrl)
+        np.testing.assert_allclose(float(reward), recorded(body, "reward")[index], **TOLERANCE)
+        assert bool(~env.alive(data)) == bool(recorded(body, "done")[index]), f"{body} step {index}: done"
+
+
+@pytest.mark.parametrize("body", ENVIRONMENT_BODIES)
+def test_one_physics_step_equals_the_original(body):
+    """MuJoCo 3.17 on our MJCF from the original's state and action gives the original's next state."""
+    env = body_env(body)
+    model = env.mj_model
+    data = mujoco.MjData(model)
+    worst = 0.0
+    for index in range(len(recorded(body, "reward"))):
+        data.qpos[:], data.qvel[:] = recorded(body, "qpos")[index], recorded(body, "qvel")[index]
+        data.ctrl[:] = recorded(body, "action")[index]
+        for _ in range(env.morphology.frame_skip):
+            mujoco.mj_step(model, data)
+        worst = max(
+            worst,
+            np.abs(data.qpos - recorded(body, "qpos_after")[index]).max(),
+            np.abs(data.qvel - recorded(body, "qvel_after")[index]).max(),
+        )
+    if body in CONTACT_DIFFERENCES:
+        assert worst < 0.5, f"{body}: {worst}"
+    else:
+        assert worst < 1e-6, f"{body}: qpos/qvel differ by up to {worst}"
