@@ -370,8 +370,8 @@ def generate_models() -> dict[str, np.ndarray]:
     import json
 
     import checkpoint
-    import torch
     import TD3
+    import torch
 
     out: dict[str, np.ndarray] = {"body": np.array(MODEL_BODY)}
     parents, graph = _graph(MODEL_BODY, "swat")
@@ -379,17 +379,23 @@ def generate_models() -> dict[str, np.ndarray]:
     observation = rng.uniform(-1, 1, (BATCH, len(parents) * 19)).astype(np.float32)
     out["observation"] = observation
     for architecture in MODEL_ARCHITECTURES:
-        args = _original_args(batch_size=BATCH, actor_type=architecture, critic_type=architecture, max_children=2)
+        args = _original_args(
+            batch_size=BATCH, actor_type=architecture, critic_type=architecture, max_children=2
+        )
         args.limb_obs_size = 19
         args.custom_xml = "environments/hoppers"
         args.seed = 3
         folder = OUTPUT / "models" / architecture
         folder.mkdir(parents=True, exist_ok=True)
-        saved = {key: value for key, value in vars(args).items() if isinstance(value, int | float | str | list | type(None))}
+        saved = {
+            key: value
+            for key, value in vars(args).items()
+            if isinstance(value, int | float | str | list | type(None))
+        }
         (folder / "args.txt").write_text(json.dumps(saved, indent=2))
         torch.manual_seed(0)
         policy = TD3.TD3(args)
-        for name, network, seed in (("actor", policy.actor, 3), ("critic", policy.critic, 4)):
+        for network, seed in ((policy.actor, 3), (policy.critic, 4)):
             _load(network, filled_state_dict(_shapes(network), seed))
         for name, network in (
             ("actor", policy.actor),
@@ -399,7 +405,9 @@ def generate_models() -> dict[str, np.ndarray]:
         ):
             for key, value in _numpy_state(network).items():
                 out[f"{architecture}/{name}/{key}"] = value
-        checkpoint.save_model(str(folder), policy, 1234, 5, 1234, {}, [MODEL_BODY], args, model_name="model_1.pyth")
+        checkpoint.save_model(
+            str(folder), policy, 1234, 5, 1234, {}, [MODEL_BODY], args, model_name="model_1.pyth"
+        )
         policy.change_morphology(graph if architecture == "swat" else {"parents": parents})
         with torch.no_grad():
             out[f"{architecture}/actions"] = policy.actor(torch.from_numpy(observation)).numpy()
