@@ -106,6 +106,7 @@ def evaluate(
         tasks.bodies,
         episodes,
         torso_relative_x=policy.config.torso_relative_x,
+        stale_kinematics=policy.config.stale_kinematics,
         physics=policy.config.physics,
         runs=len(indices),
     )

@@ -280,3 +280,70 @@ def test_one_physics_step_equals_the_original(body):
         assert worst < 0.5, f"{body}: {worst}"
     else:
         assert worst < 1e-6, f"{body}: qpos/qvel differ by up to {worst}"
+
+
+def agrees_with_the_original_physics(body: str, index: int, data) -> bool:
+    """Whether MuJoCo 3.17's step from the original's state reached the original's next state (all but a
+    few foot-contact steps of the CONTACT_DIFFERENCES bodies)."""
+    return (
+        np.abs(data.qpos - recorded(body, "qpos_after")[index]).max() < 1e-9
+        and np.abs(data.qvel - recorded(body, "qvel_after")[index]).max() < 1e-9
+    )
+
+
+@pytest.mark.parametrize("body", ENVIRONMENT_BODIES)
+def test_stale_kinematics_give_the_observation_the_original_step_returns(body):
+    """With the original's reads (the positions ``mj_step`` leaves, their Jacobians times the new qvel):
+    the observation and done the original's ``step`` returned, on MuJoCo C's step of our MJCF."""
+    env = body_env(body)
+    model = env.mj_model
+    data = mujoco.MjData(model)
+    limbs = slice(1, env.num_limbs + 1)
+    compared = 0
+    for index in range(len(recorded(body, "reward"))):
+        data.qpos[:], data.qvel[:] = recorded(body, "qpos")[index], recorded(body, "qvel")[index]
+        data.ctrl[:] = recorded(body, "action")[index]
+        for _ in range(env.morphology.frame_skip):
+            mujoco.mj_step(model, data)
+        if not agrees_with_the_original_physics(body, index, data):
+            continue
+        mujoco.mj_comVel(model, data)  # the stale positions' Jacobians times the new qvel
+        ours = limb_observation(
+            env.layout,
+            data.qpos,
+            data.xpos[limbs],
+            data.xquat[limbs],
+            data.cvel[limbs],
+            data.subtree_com[1],
+            torso_relative_x=False,
+        )
+        expected = recorded(body, "obs")[index].reshape(env.num_limbs, -1)
+        np.testing.assert_allclose(np.asarray(ours), expected, **TOLERANCE, err_msg=f"{body} step {index}")
+        assert bool(~env.alive(data)) == bool(recorded(body, "done")[index]), f"{body} step {index}: done"
+        compared += 1
+    assert compared >= 2, f"{body}: only {compared} steps where the engines agree"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("body", ["cheetah_4_front", "walker_7_main"])
+def test_the_mjx_step_reads_stale_kinematics_as_the_original(body):
+    """BodyEnv(stale_kinematics=True) on MJX (float32): from the original's state and action, the
+    observation the original's step returned, for Euler (cheetah) and RK4 (walker) integration."""
+    from swat_jax.envs import BodyEnv
+
+    env = BodyEnv(body, torso_relative_x=False, stale_kinematics=True)
+    start = env.start(env.kinematics(env.simulator.initial))
+    step = jax.jit(env.step)
+    for index in range(len(recorded(body, "reward"))):
+        data = start.data.replace(
+            qpos=jnp.asarray(recorded(body, "qpos")[index], jnp.float32),
+            qvel=jnp.asarray(recorded(body, "qvel")[index], jnp.float32),
+        )
+        state = start.replace(data=env.kinematics(data))
+        action = np.zeros(env.num_limbs)
+        action[env.motor_limbs] = recorded(body, "action")[index]
+        after = step(state, jnp.asarray(action, jnp.float32))
+        expected = recorded(body, "obs")[index].reshape(env.num_limbs, -1)
+        np.testing.assert_allclose(
+            np.asarray(after.observation), expected, rtol=1e-3, atol=2e-4, err_msg=f"step {index}"
+        )

@@ -24,7 +24,7 @@ from swat_jax.compilation_cache import lower_built_afresh
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
-from swat_jax.runs.config import PRESETS, Algorithm, ConfigError, TrainConfig, load_config
+from swat_jax.runs.config import FIXES, PRESETS, Algorithm, ConfigError, TrainConfig, load_config
 from swat_jax.runs.experiment import Experiment, load_policy
 from swat_jax.runs.metrics import read_metrics
 from swat_jax.td3.iteration import IterationConfig
@@ -327,6 +327,19 @@ def test_presets_follow_the_budget_convention():
     assert paper.td3.batch_size == 100 and paper.iteration.capacity == 500_000
     assert fast.copies > 1 and fast.td3.batch_size > paper.td3.batch_size
     assert paper.steps_per_iteration(num_bodies=5) == 5 * 100, "steps count every body"
+
+
+def test_the_intended_preset_is_the_paper_preset_with_every_quirk_fixed():
+    paper, intended, fast = PRESETS["paper"], PRESETS["intended"], PRESETS["fast"]
+    quirks = {"torso_relative_x": False, "reference_inorder": True, "stale_kinematics": True}
+    assert {name: getattr(paper, name) for name in quirks} == quirks
+    assert dataclasses.replace(intended, preset="paper", **quirks) == paper
+    assert (
+        {name: getattr(intended, name) for name in quirks}
+        == FIXES
+        == {name: getattr(fast, name) for name in quirks}
+    )
+    assert all(FIXES[name] != quirks[name] for name in quirks)
 
 
 def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):

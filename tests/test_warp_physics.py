@@ -93,7 +93,7 @@ def test_a_warp_run_trains_and_evaluates_on_warp(tmp_path, hopper_folder):
     """Train (2 seeds, periodic evaluation) and evaluate with --physics warp; the final eval/* columns are
     what swat_jax.eval measures with the run's physics."""
     run_dir = tmp_path / "warp"
-    train(tiny_train_config(run_dir, hopper_folder, physics="warp"), progress=False)
+    train(tiny_train_config(run_dir, hopper_folder, physics="warp", stale_kinematics=False), progress=False)
     policy = load_policy(run_dir)
     assert policy.config.physics == "warp"
     [evaluation] = evaluate(policy, ["hopper_3"], episodes=2, seed=0)

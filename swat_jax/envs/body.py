@@ -6,9 +6,11 @@ limit reported as truncation, not termination. One action per limb; the torso's 
 others reach their motors through the limb-to-motor map, clipped to [-1, 1].
 
 Two decisions beyond the benchmark text, both documented in the README:
-- Observations are computed from the kinematics of the state after the step. MuJoCo's ``mj_step`` leaves
-  positions and velocities of the last integrator stage in its derived fields, which the reference code
-  read as they were; here a kinematics pass on the new state makes them agree with qpos/qvel.
+- Observations are computed from the kinematics of the state after the step, or, with
+  ``stale_kinematics``, as the original code reads them: MuJoCo's ``mj_step`` leaves in its derived
+  fields the positions of the last integrator stage (before the last integration: the previous state for
+  Euler, the last stage's point for RK4), and the original read those with the new joint velocities
+  (its Jacobians times the new qvel) and the new joint angles.
 - A simulation that produces a non-finite state or a joint speed above :data:`EXPLOSION_SPEED` is
   terminated, earns reward 0 on that step, and reports an all-zero observation; no NaN leaves ``step``.
 
@@ -80,11 +82,17 @@ class BodyEnv:
         morphology: Morphology | str,
         *,
         torso_relative_x: bool = True,
+        stale_kinematics: bool = False,
         physics: Implementation = "jax",
         worlds: int = 1,
     ):
+        if stale_kinematics and physics != "jax":
+            raise ValueError(
+                "stale_kinematics reads the positions MJX's JAX step leaves; use physics='jax' or turn it off"
+            )
         self.morphology = morphology if isinstance(morphology, Morphology) else load(morphology)
         self.torso_relative_x = torso_relative_x
+        self.stale_kinematics = stale_kinematics
         self.mj_model: mujoco.MjModel = compile_model(self.morphology)
         self.simulator = Simulator(self.mj_model, physics, worlds)
         self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
@@ -112,7 +120,7 @@ class BodyEnv:
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply ``action`` [n] (one value per limb, the torso's ignored) for ``frame_skip`` physics steps."""
-        return self.finish_step(state, self.kinematics(self.simulate(state.data, action)))
+        return self.finish_step(state, self.step_kinematics(self.simulate(state.data, action)))
 
     def initial_data(self, rng: jax.Array) -> mjx.Data:
         """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
@@ -139,6 +147,12 @@ class BodyEnv:
     def kinematics(self, data: mjx.Data) -> mjx.Data:
         """Positions, orientations, sites and frame velocities computed from ``data``'s qpos and qvel."""
         return self.simulator.derive(data)
+
+    def step_kinematics(self, data: mjx.Data) -> mjx.Data:
+        """The kinematics a step's observation and termination read, for ``data`` just simulated:
+        :meth:`kinematics`, or with ``stale_kinematics`` the positions, orientations and sites the last
+        physics step left, with frame velocities from them and the new qvel (the original code's reads)."""
+        return self.simulator.velocities(data) if self.stale_kinematics else self.kinematics(data)
 
     def start(self, data: mjx.Data) -> EnvState:
         """The state of a new episode at ``data`` (kinematics computed)."""

@@ -96,7 +96,7 @@ class MultiTaskEnv:
             observation width (families with the same limb-type vocabulary).
         copies: n, parallel copies of each body.
         max_limbs: L, the padded limb count; defaults to the largest body's.
-        torso_relative_x: see :class:`~swat_jax.envs.body.BodyEnv`.
+        torso_relative_x, stale_kinematics: see :class:`~swat_jax.envs.body.BodyEnv`.
         physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
         runs: how many instances of this environment one program steps (seeds: a leading run axis of the
             state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
@@ -114,6 +114,7 @@ class MultiTaskEnv:
         *,
         max_limbs: int | None = None,
         torso_relative_x: bool = True,
+        stale_kinematics: bool = False,
         physics: Implementation = "jax",
         runs: int = 1,
     ):
@@ -126,7 +127,13 @@ class MultiTaskEnv:
         if max_limbs is not None and max_limbs < largest.num_limbs:
             raise ValueError(f"{largest.name} has {largest.num_limbs} limbs, more than max_limbs={max_limbs}")
         self.envs = tuple(
-            BodyEnv(body, torso_relative_x=torso_relative_x, physics=physics, worlds=2 * copies * runs)
+            BodyEnv(
+                body,
+                torso_relative_x=torso_relative_x,
+                stale_kinematics=stale_kinematics,
+                physics=physics,
+                worlds=2 * copies * runs,
+            )
             for body in morphologies
         )
         widths = {env.morphology.name: env.observation_features for env in self.envs}
@@ -159,7 +166,10 @@ class MultiTaskEnv:
         return (
             self.copies,
             self.max_limbs,
-            *((env.morphology, env.torso_relative_x, _model_digest(env.mj_model)) for env in self.envs),
+            *(
+                (env.morphology, env.torso_relative_x, env.stale_kinematics, _model_digest(env.mj_model))
+                for env in self.envs
+            ),
         )
 
     def reset(self, rng: jax.Array) -> MultiTaskState:
@@ -275,16 +285,21 @@ def _step_and_restart(
     the step ended one).
 
     The stepped and the fresh simulator states share one kinematics pass over 2n copies, so the
-    compiled step holds one kinematics program per body instead of two.
+    compiled step holds one kinematics program per body instead of two (with ``stale_kinematics`` the
+    stepped copies only need their velocities).
     """
     copies = action.shape[0]
     simulated = jax.vmap(env.simulate)(state.data, action)
     initial = jax.vmap(env.initial_data)(keys)
-    both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), simulated, initial)
-    both = jax.vmap(env.kinematics)(both)
-    simulated, initial = (
-        jax.tree_util.tree_map(lambda x, s=s: x[s], both) for s in (slice(None, copies), slice(copies, None))
-    )
+    if env.stale_kinematics:
+        simulated, initial = jax.vmap(env.step_kinematics)(simulated), jax.vmap(env.kinematics)(initial)
+    else:
+        both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), simulated, initial)
+        both = jax.vmap(env.kinematics)(both)
+        simulated, initial = (
+            jax.tree_util.tree_map(lambda x, s=s: x[s], both)
+            for s in (slice(None, copies), slice(copies, None))
+        )
     return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial)
 
 

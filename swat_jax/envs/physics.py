@@ -148,6 +148,12 @@ class Simulator:
             return mjx.com_vel(self.model, mjx.com_pos(self.model, mjx.kinematics(self.model, data)))
         return self._detach(mjx.forward(self.model, self._attach(data)))
 
+    def velocities(self, data: mjx.Data) -> mjx.Data:
+        """Frame velocities (``cvel``) of ``data``'s qvel at the positions its derived fields hold (JAX only):
+        after :meth:`advance`, those the last physics step left, i.e. the Jacobians of that step's last
+        ``forward`` (the previous state for Euler, :func:`rk4_step`'s last stage) times the new qvel."""
+        return mjx.com_vel(self.model, data)
+
     def _attach(self, data: mjx.Data) -> mjx.Data:
         """``data`` with the shared Warp buffers in place of its placeholders (unbatched under vmap)."""
         if not self._buffers:

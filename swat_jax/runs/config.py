@@ -7,6 +7,8 @@
   update schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100
   steps per task, task after task takes 100 updates on batches of 100 from its own replay, one Adam step
   per environment step summed over tasks.
+- ``intended``: the ``paper`` preset with every quirk of the original code fixed (:data:`FIXES`): the
+  paper's intended method on the original's schedule.
 - ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
   from every task), with a larger batch and fewer updates per environment step, for wall clock.
 
@@ -33,7 +35,7 @@ from swat_jax.td3.iteration import SCHEDULES, IterationConfig
 from swat_jax.td3.learner import TD3Config
 
 Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
-Preset = Literal["paper", "fast"]
+Preset = Literal["paper", "intended", "fast"]
 Split = Literal["train", "test", "all"]
 
 
@@ -120,6 +122,8 @@ class TrainConfig:
     """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
     reference_inorder: bool = True
     """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
+    stale_kinematics: bool = True
+    """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --physics jax); off: kinematics of the state after the step (the fast preset)."""
     log_interval: int = 10_000
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
     eval_interval: int = 0
@@ -180,6 +184,11 @@ class TrainConfig:
                 f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
                 f"(--copies {self.copies})"
             )
+        if self.stale_kinematics and self.physics != "jax":
+            raise ConfigError(
+                f"--stale-kinematics reads what MJX's JAX step leaves and does not run on --physics {self.physics}; "
+                "add --no-stale-kinematics"
+            )
         try:
             self.network()
         except ValueError as error:
@@ -231,6 +240,9 @@ class TrainConfig:
         return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
 
 
+FIXES: dict[str, bool] = {"torso_relative_x": True, "reference_inorder": False, "stale_kinematics": False}
+"""The switches of the original code's quirks, each set to the fix: what the paper intends (docs/fidelity.md)."""
+
 PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(
         preset="paper",
@@ -238,14 +250,20 @@ PRESETS: dict[str, TrainConfig] = {
         iteration=IterationConfig(chunk=100, updates=100, schedule="original"),
         torso_relative_x=False,
         reference_inorder=True,
+        stale_kinematics=True,
+    ),
+    "intended": TrainConfig(
+        preset="intended",
+        copies=1,
+        iteration=IterationConfig(chunk=100, updates=100, schedule="original"),
+        **FIXES,
     ),
     "fast": TrainConfig(
         preset="fast",
         copies=16,
         iteration=IterationConfig(chunk=32, updates=64, schedule="all_tasks"),
         td3=TD3Config(batch_size=256),
-        torso_relative_x=True,
-        reference_inorder=False,
+        **FIXES,
     ),
 }
 """The defaults each preset gives every flag."""

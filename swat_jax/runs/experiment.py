@@ -65,6 +65,7 @@ class Experiment:
             tasks.bodies,
             config.copies,
             torso_relative_x=config.torso_relative_x,
+            stale_kinematics=config.stale_kinematics,
             physics=config.physics,
             runs=config.seeds,
         )
@@ -184,6 +185,7 @@ class Experiment:
             self.tasks.bodies,
             self.config.eval_episodes,
             torso_relative_x=self.config.torso_relative_x,
+            stale_kinematics=self.config.stale_kinematics,
             physics=self.config.physics,
             runs=self.config.seeds,
         )
