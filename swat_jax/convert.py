@@ -155,6 +155,11 @@ def train_config(model: OriginalModel, *, env: str | None, run_dir: str) -> Trai
             f"actor and critic are the same one of {', '.join(ALGORITHMS)}"
         )
     algo = ALGORITHMS[actor_type]
+    if algo == "smp" and int(args.get("msg_dim", 32)) != NetworkConfig().message_width:
+        raise ConversionError(
+            f"{where}: msg_dim {args['msg_dim']}: swat_jax's train config keeps SMP's messages at "
+            f"{NetworkConfig().message_width} values (the original's default)"
+        )
     if algo == "smp" and not (args.get("td") and args.get("bu")):
         raise ConversionError(
             f"{where}: an SMP run without --td and --bu has no message passing; swat_jax's SMP is the two-way one"

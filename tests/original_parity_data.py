@@ -16,7 +16,7 @@ states and actions: the observation it returns, reward and done, and the observa
 own kinematics. ``models.npz`` and ``models/``: run folders of SWAT and AMORPHEUS saved by the
 original's ``checkpoint.save_model``, their state dicts and the actions of their actors. ``updates.npz``: two consecutive ``TD3.train_single`` updates of SWAT and SMP from filled weights,
 the batches and the target-policy noise the original drew, and the parameters after each update at
-sampled positions. Only :func:`filled_state_dict` and :func:`flat_ids` are imported by the tests;
+sampled positions. Only :func:`filled_state_dict`, :func:`flat_ids` and :func:`stored_shapes` are imported by the tests;
 they need nothing but NumPy.
 """
 
@@ -72,6 +72,14 @@ def flat_ids(shapes: dict[str, tuple[int, ...]]) -> dict[str, np.ndarray]:
         ids[key] = np.arange(offset, offset + size, dtype=np.float64).reshape(shapes[key])
         offset += size
     return ids
+
+
+def stored_shapes(data, prefix: str) -> dict[str, tuple[int, ...]]:
+    """The state-dict shapes the generator saved under ``prefix`` (``<prefix>/keys``, ``<prefix>/shapes``)."""
+    return {
+        str(key): tuple(int(size) for size in str(shape).split(","))
+        for key, shape in zip(data[f"{prefix}/keys"], data[f"{prefix}/shapes"], strict=True)
+    }
 
 
 def _original_args(**overrides):
@@ -366,7 +374,8 @@ def generate_models() -> dict[str, np.ndarray]:
     """For SWAT and AMORPHEUS (the original's ``transformer``): a run folder as the original ``main.py``
     writes it (``args.txt``, ``model_1.pyth`` from ``checkpoint.save_model``) under
     ``tests/data/original/models/<type>/``, and, in the returned arrays, its state dicts and the
-    actor's actions for random observations of MODEL_BODY."""
+    actor's actions for random observations of MODEL_BODY. For SMP (whose files would be megabytes):
+    its args, state-dict shapes and actions with filled weights."""
     import json
 
     import checkpoint
@@ -411,6 +420,20 @@ def generate_models() -> dict[str, np.ndarray]:
         policy.change_morphology(graph if architecture == "swat" else {"parents": parents})
         with torch.no_grad():
             out[f"{architecture}/actions"] = policy.actor(torch.from_numpy(observation)).numpy()
+    # SMP at the original's default sizes (msg_dim 32, the 400-300 layers), Hopper++'s one child slot:
+    # its args, state-dict shapes and actions, the weights filled as filled_state_dict fills them.
+    args = _original_args(batch_size=BATCH, actor_type="smp", critic_type="smp", max_children=1)
+    args.limb_obs_size, args.msg_dim, args.custom_xml, args.seed = 19, 32, "environments/hoppers", 3
+    saved = {key: value for key, value in vars(args).items() if isinstance(value, int | float | str | list)}
+    out["smp/args"] = np.array(json.dumps({**saved, "max_children": None}))
+    torch.manual_seed(0)
+    actor, critic = _networks("smp", args)
+    for name, network, seed in (("actor", actor, 3), ("critic", critic, 4)):
+        _save_shapes(out, f"smp/{name}", _shapes(network))
+        _load(network, filled_state_dict(_shapes(network), seed))
+    actor.change_morphology({"parents": parents})
+    with torch.no_grad():
+        out["smp/actions"] = actor(torch.from_numpy(observation)).numpy()
     return out
 
 

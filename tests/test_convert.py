@@ -16,6 +16,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from original_parity_data import filled_state_dict, stored_shapes
 
 from swat_jax.convert import (
     ConversionError,
@@ -75,6 +76,28 @@ def test_converted_policy_acts_as_the_original(architecture, tmp_path, hopper_fo
     np.testing.assert_allclose(converted_actions(run_dir), MODELS[f"{architecture}/actions"], **TOLERANCE)
 
 
+def test_converted_smp_policy_acts_as_the_original(tmp_path, hopper_folder):
+    """SMP at the original's sizes (its files would be megabytes: weights filled as the generator filled
+    them); Hopper++'s child slots (1) come from the training bodies, as in the original."""
+    weights = {
+        name: filled_state_dict(stored_shapes(MODELS, f"smp/{name}"), seed)
+        for name, seed in (("actor", 3), ("critic", 4))
+    }
+    model = OriginalModel(
+        args=json.loads(str(MODELS["smp/args"])),
+        actor=weights["actor"],
+        critic=weights["critic"],
+        target_actor=weights["actor"],
+        target_critic=weights["critic"],
+        total_timesteps=0,
+        path=tmp_path / "model.pyth",
+    )
+    config = train_config(model, env=str(hopper_folder), run_dir=str(tmp_path / "run"))
+    assert config.algo == "smp" and config.network().max_children == 1
+    run_dir = convert(model, config)
+    np.testing.assert_allclose(converted_actions(run_dir), MODELS["smp/actions"], **TOLERANCE)
+
+
 def test_the_set_comes_from_the_original_folder_name():
     config = train_config(stored_model("swat"), env=None, run_dir="unused")
     assert config.env == "hopper"
@@ -82,7 +105,7 @@ def test_the_set_comes_from_the_original_folder_name():
 
 def test_an_smp_run_without_message_passing_is_refused_with_the_reason():
     model = stored_model("swat")
-    args = {**model.args, "actor_type": "smp", "critic_type": "smp", "td": False, "bu": False}
+    args = {**json.loads(str(MODELS["smp/args"])), "td": False, "bu": False}
     model = OriginalModel(**{**model.__dict__, "args": args})
     with pytest.raises(ConversionError, match="without --td and --bu"):
         train_config(model, env=None, run_dir="unused")

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from original_parity_data import filled_state_dict, flat_ids
+from original_parity_data import filled_state_dict, flat_ids, stored_shapes
 
 from swat_jax.envs.observation import limb_observation
 from swat_jax.morphology import RELATION_NAMES, load, pad_structures
@@ -44,17 +44,10 @@ def config(architecture: str, data, max_children: int):
     )
 
 
-def shapes(data, prefix: str) -> dict[str, tuple[int, ...]]:
-    return {
-        str(key): tuple(int(size) for size in str(shape).split(","))
-        for key, shape in zip(data[f"{prefix}/keys"], data[f"{prefix}/shapes"], strict=True)
-    }
-
-
 def stored_or_filled(data, architecture: str, state: str, network: str, seed: int) -> dict[str, np.ndarray]:
     """The state dict of one original network: stored (``init``) or filled the generator's way."""
     if state == "filled":
-        return filled_state_dict(shapes(data, f"{architecture}/{network}"), seed)
+        return filled_state_dict(stored_shapes(data, f"{architecture}/{network}"), seed)
     prefix = f"{architecture}/{state}/{network}/"
     return {key[len(prefix) :]: data[key] for key in data.files if key.startswith(prefix)}
 
@@ -159,13 +152,13 @@ def test_two_td3_updates_equal_the_original(architecture):
     structure = pad_structures([load(str(data["body"]))], reference_inorder=True)
     limbs = int(structure.num_limbs[0])
     weights = {
-        name: filled_state_dict(shapes(data, f"{architecture}/{name}"), seed)
+        name: filled_state_dict(stored_shapes(data, f"{architecture}/{name}"), seed)
         for name, seed in (("actor", 1), ("critic", 2))
     }
     to_params = {"actor": actor_params, "critic": critic_params}
     params = {name: to_params[name](weights[name], net_config) for name in weights}
     ids = {
-        name: to_params[name](flat_ids(shapes(data, f"{architecture}/{name}")), net_config)
+        name: to_params[name](flat_ids(stored_shapes(data, f"{architecture}/{name}")), net_config)
         for name in weights
     }
     optimizer = learner.optimizer()
