@@ -1,6 +1,6 @@
 """One body as a functional MuJoCo MJX environment: ``reset(rng) -> state``, ``step(state, action) -> state``.
 
-Exactly the benchmark of BENCHMARK.md: frame skip 4, the per-limb observation of observation.py, the
+Exactly the modular-locomotion benchmark (README, "Environments"): frame skip 4, the per-limb observation of observation.py, the
 family's reward, termination and reset noise (swat_jax/morphology/families.py), and the 1000-step time
 limit reported as truncation, not termination. One action per limb; the torso's is ignored and the
 others reach their motors through the limb-to-motor map, clipped to [-1, 1].
@@ -71,8 +71,10 @@ class BodyEnv:
     Args:
         morphology: a loaded body, a benchmark body name, or the path of an MJCF file.
         torso_relative_x: subtract the torso's x from every limb's x (the paper's intent, default).
-            False reproduces the reference code (BENCHMARK.md quirk 1): the torso reads x = 0 and every
-            other limb its absolute world x.
+            False reproduces the reference code (docs/fidelity.md, rows 31-32): the torso reads x = 0, every
+            other limb its absolute world x, and the torso's velocity is that of the point (0, y, z).
+        stale_kinematics: observe the positions the last physics step left, as the original code does
+            (docs/fidelity.md, row 33; JAX physics only).
         physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
         worlds: "warp" only: the most copies one vmapped call steps, all vmap axes together.
     """
@@ -199,7 +201,7 @@ class BodyEnv:
         ).astype(jnp.float32)
 
     def reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
-        """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (BENCHMARK.md, "Reward")."""
+        """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (the family's reward, morphology/families.py)."""
         reward = self.morphology.family.reward
         forward = (x_after - x_before) / self.morphology.control_dt
         return (
@@ -207,7 +209,7 @@ class BodyEnv:
         )
 
     def alive(self, data: mjx.Data) -> jax.Array:
-        """[] bool: every termination condition of the body holds (BENCHMARK.md, "Termination"); ``data``
+        """[] bool: every termination condition of the body holds (the family's termination, morphology/families.py); ``data``
         may also be MuJoCo C's ``MjData`` (qpos, qvel and site_xpos are read)."""
         termination = self.morphology.family.termination
         alive = jnp.ones((), bool)
