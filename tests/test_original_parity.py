@@ -252,6 +252,15 @@ def test_observation_reward_and_done_equal_the_original(body):
         assert bool(~env.alive(data)) == bool(recorded(body, "done")[index]), f"{body} step {index}: done"
 
 
+def step_from_the_original_state(env, data, body: str, index: int) -> None:
+    """MuJoCo C's environment step of ``env``'s model in ``data``, from the original's recorded state and
+    action ``index``."""
+    data.qpos[:], data.qvel[:] = recorded(body, "qpos")[index], recorded(body, "qvel")[index]
+    data.ctrl[:] = recorded(body, "action")[index]
+    for _ in range(env.morphology.frame_skip):
+        mujoco.mj_step(env.mj_model, data)
+
+
 @pytest.mark.parametrize("body", ENVIRONMENT_BODIES)
 def test_one_physics_step_equals_the_original(body):
     """MuJoCo 3.17 on our MJCF from the original's state and action gives the original's next state."""
@@ -260,10 +269,7 @@ def test_one_physics_step_equals_the_original(body):
     data = mujoco.MjData(model)
     worst = 0.0
     for index in range(len(recorded(body, "reward"))):
-        data.qpos[:], data.qvel[:] = recorded(body, "qpos")[index], recorded(body, "qvel")[index]
-        data.ctrl[:] = recorded(body, "action")[index]
-        for _ in range(env.morphology.frame_skip):
-            mujoco.mj_step(model, data)
+        step_from_the_original_state(env, data, body, index)
         worst = max(
             worst,
             np.abs(data.qpos - recorded(body, "qpos_after")[index]).max(),
@@ -294,10 +300,7 @@ def test_stale_kinematics_give_the_observation_the_original_step_returns(body):
     limbs = slice(1, env.num_limbs + 1)
     compared = 0
     for index in range(len(recorded(body, "reward"))):
-        data.qpos[:], data.qvel[:] = recorded(body, "qpos")[index], recorded(body, "qvel")[index]
-        data.ctrl[:] = recorded(body, "action")[index]
-        for _ in range(env.morphology.frame_skip):
-            mujoco.mj_step(model, data)
+        step_from_the_original_state(env, data, body, index)
         if not agrees_with_the_original_physics(body, index, data):
             continue
         mujoco.mj_comVel(model, data)  # the stale positions' Jacobians times the new qvel
