@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 
 def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
-    """BENCHMARK.md's table, written out limb by limb from MuJoCo C data and Jacobians.
+    """The benchmark's per-limb observation, written out limb by limb from MuJoCo C data and Jacobians.
 
     ``torso_relative_x=False`` does what the original code does: it subtracts the torso's x inside
     ``data.xpos`` (restored afterwards) before reading positions and Jacobians, so the torso's velocity

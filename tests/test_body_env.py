@@ -1,6 +1,6 @@
-"""One body's environment: reward, termination and reset noise as BENCHMARK.md states them.
+"""One body's environment: reward, termination and reset noise as the benchmark defines them.
 
-The expected values are written out here from BENCHMARK.md's tables with literal numbers, independently
+The expected values are written out here from the benchmark's definitions with literal numbers, independently
 of swat_jax/morphology/families.py, and compared on random states of each body.
 """
 
@@ -19,7 +19,7 @@ SAMPLES = 96
 
 
 def reference_alive(name: str, qpos: np.ndarray, qvel: np.ndarray, site_z: dict[str, float]) -> bool:
-    """BENCHMARK.md "Termination", row by row."""
+    """The benchmark's termination rules, row by row."""
     h, angle = qpos[1], qpos[2]
     bounded = bool(np.all(np.abs(qpos[2:]) < 100) and np.all(np.abs(qvel) < 100))
     upright = abs(angle) < 1
@@ -47,7 +47,7 @@ def reference_alive(name: str, qpos: np.ndarray, qvel: np.ndarray, site_z: dict[
 
 
 def reference_reward(name: str, x_before: float, x_after: float, control: np.ndarray) -> float:
-    """BENCHMARK.md "Reward"; dt = 4 x timestep (0.002 s, cheetahs 0.01 s)."""
+    """The benchmark's reward; dt = 4 x timestep (0.002 s, cheetahs 0.01 s)."""
     if name.startswith("cheetah_"):
         return (x_after - x_before) / 0.04 - 0.1 * np.sum(control**2)
     if name in ("nervenet_fullcheetah", "nervenet_halfcheetah"):

@@ -1,4 +1,4 @@
-"""The MJX environment against plain MuJoCo C: same actions, same states (BENCHMARK.md physics).
+"""The MJX environment against plain MuJoCo C: same actions, same states.
 
 In float64 MJX and MuJoCo C run the same algorithm, so 100 environment steps (400 physics steps,
 contacts included) agree to 1e-8; this pins the physics, including swat_jax's own RK4 integrator

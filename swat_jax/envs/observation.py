@@ -1,4 +1,4 @@
-"""The benchmark's per-limb observation (BENCHMARK.md, "Per-limb observation"), as a pure function.
+"""The benchmark's per-limb observation, as a pure function.
 
 One row per limb, limbs in pre-order (limb i is MuJoCo body i + 1):
 

@@ -50,7 +50,7 @@ def pad_structures(
     Args:
         bodies: K bodies, any families.
         max_limbs: L, the padded limb count; defaults to the largest body's limb count.
-        reference_inorder: use the reference code's in-order traversal (BENCHMARK.md quirk 2,
+        reference_inorder: use the reference code's in-order traversal (docs/fidelity.md, row 13;
             see :func:`traversal_positions`).
 
     Returns:

@@ -121,7 +121,7 @@ def traversal_positions(parents: Sequence[int], *, reference_inorder: bool = Fal
 
     Args:
         parents: [n] parent index per limb in pre-order, -1 for the torso at index 0.
-        reference_inorder: reproduce the reference code's in-order (BENCHMARK.md quirk 2):
+        reference_inorder: reproduce the reference code's in-order (docs/fidelity.md, row 13):
             a limb with no left link (no children) but a right link (a next sibling) treats
             that sibling as its left child, so the limb is listed after its sibling's subtree
             instead of before it. Pre- and post-order are unaffected by this change.

@@ -40,7 +40,7 @@ def _walkers() -> dict[str, Variant]:
         6: ("right3",),
         7: (),
     }
-    # The flipped walkers have the main walkers' bodies (BENCHMARK.md quirk 3).
+    # The flipped walkers have the main walkers' bodies (as in the original code).
     return {
         f"walker_{n}_{kind}": Variant("walker_7_main", limbs)
         for n, limbs in removed.items()

@@ -1,6 +1,6 @@
 """The benchmark's environment sets (train and held-out test bodies), and folders of MJCF files.
 
-Splits as AMORPHEUS and SWAT used them (BENCHMARK.md, "Environment sets"). The unions (WH++, WHH++,
+Splits as AMORPHEUS and SWAT used them. The unions (WH++, WHH++,
 CWH++, CWHH++) are built from the single-family sets, so a split is written down once.
 """
 

@@ -49,7 +49,7 @@ def task_set(
         network: the policy network that will act on them.
         max_limbs: L; defaults to the largest body's limb count.
         reference_inorder: the reference code's in-order traversal in the positional encoding
-            (BENCHMARK.md quirk 2); a property of the trained network, so it comes from its run.
+            (docs/fidelity.md, row 13); a property of the trained network, so it comes from its run.
 
     Raises:
         MorphologyError: a body cannot be loaded.

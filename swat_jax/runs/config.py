@@ -12,7 +12,7 @@
 - ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
   from every task), with a larger batch and fewer updates per environment step, for wall clock.
 
-Budget convention (BENCHMARK.md): ``steps`` counts environment steps summed over all bodies of the set,
+Budget convention (the benchmark's): ``steps`` counts environment steps summed over all bodies of the set,
 so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
 """
 

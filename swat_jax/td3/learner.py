@@ -37,7 +37,7 @@ from swat_jax.td3.replay import Transitions
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config:
-    """TD3 hyperparameters; defaults are the paper's (BENCHMARK.md, "Training settings")."""
+    """TD3 hyperparameters; defaults are the paper's."""
 
     discount: float = 0.99
     """Reward discount."""
