@@ -33,7 +33,7 @@ import shlex
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from machine import cpu_model, host_cores, software_versions
@@ -116,6 +116,13 @@ SCALES = {
 
 class GridError(RuntimeError):
     """The grid cannot go on; the message says why and what to do."""
+
+
+class GridInterrupted(GridError):
+    """Ctrl-C: the running run checkpointed; the same command continues."""
+
+
+# Figures, tables and their reports
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,10 +253,38 @@ def run_child(command: list[str]) -> int:
             continue
 
 
+def read_timings(out: Path) -> dict[str, float]:
+    """The wall clock (s) recorded for each run name in ``OUT/timings.json``; empty before any run."""
+    path = out / TIMINGS_FILE
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def add_timing(out: Path, name: str, seconds: float) -> None:
+    """Add ``seconds`` to ``name``'s wall clock in ``OUT/timings.json`` (a resumed run adds up its sittings)."""
+    timings = read_timings(out)
+    timings[name] = timings.get(name, 0.0) + seconds
+    out.mkdir(parents=True, exist_ok=True)
+    (out / TIMINGS_FILE).write_text(json.dumps(timings, indent=2) + "\n")
+
+
+def exit_status(work: Callable[[], Path | None]) -> int:
+    """Run a command's ``work`` and give its exit status: 0 (printing the file it wrote, if any), the
+    interrupted status after Ctrl-C (the same command continues), 2 with one error line for bad input."""
+    try:
+        path = work()
+    except GridInterrupted as error:
+        print(f"\n{error}", file=sys.stderr)
+        return INTERRUPTED_STATUS
+    except (GridError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if path is not None:
+        print(f"wrote {path}")
+    return 0
+
+
 def train_all(runs: Sequence[RunSpec], out: Path) -> None:
     """Train every run that has not reached its budget, one after another; record their wall clock."""
-    timings_path = out / TIMINGS_FILE
-    timings = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
     for index, run in enumerate(runs, start=1):
         steps, budget = progress(run), run.config().steps
         label = f"[{index}/{len(runs)}] {run.name}"
@@ -263,22 +298,13 @@ def train_all(runs: Sequence[RunSpec], out: Path) -> None:
         print(f"  python {shlex.join(command[1:])}", file=sys.stderr)
         start = time.perf_counter()
         status = run_child(command)
-        timings[run.name] = timings.get(run.name, 0.0) + time.perf_counter() - start
-        out.mkdir(parents=True, exist_ok=True)
-        timings_path.write_text(json.dumps(timings, indent=2) + "\n")
+        add_timing(out, run.name, time.perf_counter() - start)
         if status == INTERRUPTED_STATUS:
             raise GridInterrupted(
                 f"{run.name} stopped before its budget; run the same command again to continue"
             )
         if status != 0 or (progress(run) or 0) < budget:
             raise GridError(f"{run.name}: swat_jax.train exited with status {status} (its message is above)")
-
-
-class GridInterrupted(GridError):
-    """Ctrl-C: the running run checkpointed; the same command continues."""
-
-
-# Figures, tables and their reports
 
 
 def final_points(csv_path: Path) -> list[dict[str, str]]:
@@ -353,8 +379,7 @@ def report(
     command: str, argv: Sequence[str], scale: Scale, runs: Sequence[RunSpec], out: Path, sections: list[str]
 ) -> Path:
     """Write ``OUT/<command>.md``: the command, machine, date, settings, wall clock per run, results."""
-    timings_path = out / TIMINGS_FILE
-    timings = json.loads(timings_path.read_text()) if timings_path.is_file() else {}
+    timings = read_timings(out)
     versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
     lines = [
         f"# {command}, scale {scale.name}",
@@ -433,20 +458,15 @@ def main(argv: list[str] | None = None) -> int:
     sets = args.sets or scale.sets[args.command]
     algorithms = args.algos or (ABLATIONS if args.command == "figure6" else MAIN_ALGORITHMS)
     out = args.out or Path("experiments/results") / scale.name
-    try:
+
+    def work() -> Path | None:
         if args.dry_run:
             for run in grid(args.command, scale, sets, algorithms, out):
                 print("python", shlex.join(run.command()[1:]))
-            return 0
-        path = produce(args.command, scale, sets, algorithms, out, argv)
-    except GridInterrupted as error:
-        print(f"\n{error}", file=sys.stderr)
-        return INTERRUPTED_STATUS
-    except (GridError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(f"wrote {path}")
-    return 0
+            return None
+        return produce(args.command, scale, sets, algorithms, out, argv)
+
+    return exit_status(work)
 
 
 if __name__ == "__main__":

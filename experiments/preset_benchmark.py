@@ -3,9 +3,10 @@
 For each preset (and any ``--copies`` variants of ``fast``), the script builds the run's experiment,
 compiles its training iteration (reported separately), runs one warm-up iteration and then times
 ``--iterations`` iterations; the policy acts from the first step (``random_steps=0``) so the timed
-iterations are the steady state. Reported: environment steps per second summed over bodies, sampled
-transitions per second of TD3 update work (updates x batch x bodies / s), and both as ratios to the
-``paper`` preset measured in the same run.
+iterations are the steady state. Reported: environment steps per second summed over bodies (with the
+paper preset's lock-step rounds, the steps it counts: fewer than it takes), sampled transitions per second
+of TD3 update work (updates x batch / s), and both as ratios to the ``paper`` preset measured in the same
+run.
 
     python experiments/preset_benchmark.py [--env hopper] [--algo swat] [--iterations 3]
         [--capacity 100000] [--fast-copies 16 64]
@@ -31,7 +32,11 @@ class Measurement:
     config: TrainConfig
     compile_seconds: float
     env_steps_per_second: float
+    """Steps counted toward the budget per second, summed over bodies, of one seed (the first)."""
+    updates_per_second: float
+    """Adam steps of the critic per second, summed over bodies."""
     transitions_per_second: float
+    """Transitions sampled by those updates per second."""
 
 
 def measure(
@@ -46,19 +51,28 @@ def measure(
     compile_seconds = time.perf_counter() - start
     state, _ = iteration(state)
     jax.block_until_ready(state)
+    counted_before = int(state.counted.reshape(-1)[0])
     start = time.perf_counter()
     for _ in range(iterations):
         state, _ = iteration(state)
     jax.block_until_ready(state)
     seconds = time.perf_counter() - start
     bodies = experiment.env.num_bodies
-    updates = iterations * config.iteration.updates
+    counted = int(state.counted.reshape(-1)[0])
+    if config.iteration.rounds:
+        updates = bodies * (counted // bodies - counted_before // bodies)
+    elif config.iteration.schedule == "original":
+        updates = iterations * config.iteration.updates * bodies
+    else:
+        updates = iterations * config.iteration.updates
+    batch_rows = config.td3.batch_size * (1 if config.iteration.schedule == "original" else bodies)
     return Measurement(
         label,
         config,
         compile_seconds,
-        iterations * config.steps_per_iteration(bodies) / seconds,
-        updates * config.td3.batch_size * bodies / seconds,
+        (counted - counted_before) / seconds,
+        updates / seconds,
+        updates * batch_rows / seconds,
     )
 
 

@@ -67,8 +67,8 @@ MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"
 
 
 def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
-    """A run small enough for CI: hopper_3 alone, 2 seeds in one program, 2 copies, a 1-layer AMORPHEUS of
-    width 16, evaluated (2 episodes) at 400 steps and at the end."""
+    """A run small enough for CI: hopper_3 alone, 2 seeds in one program, 2 copies in the paper preset's
+    lock-step rounds, a 1-layer AMORPHEUS of width 16, evaluated (2 episodes) at 400 steps and at the end."""
     from swat_jax.runs.config import TrainConfig
     from swat_jax.td3.iteration import IterationConfig
     from swat_jax.td3.learner import TD3Config
@@ -79,7 +79,7 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
         steps=600,
         seeds=2,
         copies=2,
-        iteration=IterationConfig(chunk=50, updates=20, random_steps=100, capacity=1000),
+        iteration=IterationConfig(chunk=50, random_steps=100, capacity=1000, rounds=True),
         td3=TD3Config(batch_size=16),
         width=16,
         layers=1,
@@ -112,7 +112,8 @@ def train_flags(config) -> list[str]:
         if value == default:
             return []
         if isinstance(value, bool):
-            return [f"--{name}" if value else f"--no-{name}"]
+            group, _, field = name.rpartition(".")
+            return [f"--{name}" if value else f"--{group + '.' if group else ''}no-{field}"]
         return [f"--{name}", str(value)]
 
     return flags(config, PRESETS["paper"], "")

@@ -17,6 +17,8 @@ sys.path.insert(0, str(REPO / "experiments"))
 
 import against_original as against  # noqa: E402
 
+from swat_jax.morphology import get_set  # noqa: E402
+
 MICRO = against.SCALES["micro"]
 ORIGINAL_PYTHON = Path(os.environ.get("ORIGINAL_PYTHON", "/tmp/orig-venv/bin/python"))
 ORIGINAL_TOOLS = Path(os.environ.get("ORIGINAL_TOOLS", REPO.parent / "shared" / "tools" / "original"))
@@ -34,7 +36,6 @@ def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_pat
         theirs = flag_values(run.flags())
         assert theirs["--seed"] == str(seed)
         same = {
-            "--steps": "--max_timesteps",
             "--width": "--attention_embedding_size",
             "--heads": "--attention_heads",
             "--layers": "--attention_layers",
@@ -50,8 +51,16 @@ def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_pat
             theirs["--custom_xml"]
             == {"hopper": "environments/hoppers", "walker": "environments/walkers"}[environment_set]
         )
+        assert int(theirs["--max_timesteps"]) == MICRO.budget(environment_set)
     assert (ours["--preset"], ours["--seeds"]) == ("paper", str(MICRO.seeds))
-    assert int(ours["--log-interval"]) == MICRO.log_interval(environment_set)
+    bodies = len(get_set(environment_set).train)
+    stored = int(ours["--steps"])
+    assert stored == MICRO.stored_budget(environment_set) >= 1.75 * MICRO.budget(environment_set), (
+        "swat_jax's budget stores enough steps for every seed to count the original's budget"
+    )
+    assert stored % (bodies * against.CHUNK) == 0 and int(ours["--log-interval"]) == bodies * against.CHUNK, (
+        "a row per chunk, for the curves to be binned by counted steps"
+    )
 
 
 def test_a_budget_off_the_curves_grid_is_refused_with_the_fix(tmp_path, capsys):
@@ -150,7 +159,7 @@ def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys)
     # A second call keeps the finished run instead of training it again.
     capsys.readouterr()
     assert against.main(argv) == 0
-    assert "done (600 steps), kept" in capsys.readouterr().err
+    assert f"done ({MICRO.stored_budget('hopper'):,} steps), kept" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(

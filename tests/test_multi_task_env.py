@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from swat_jax.envs import MultiTaskEnv
+from swat_jax.envs.multi_task import lock_step_round
 
 BODIES = ("hopper_3", "cheetah_4_front")
 COPIES = 3
@@ -129,3 +130,56 @@ def test_bodies_with_different_observation_widths_are_refused():
         MultiTaskEnv(["hopper_3"], 0)
     with pytest.raises(ValueError, match="max_limbs"):
         MultiTaskEnv(["hopper_3", "cheetah_4_front"], 1, max_limbs=3)
+
+
+def lock_step_episodes(lengths: list[list[list[int]]], steps: int) -> dict[str, np.ndarray]:
+    """Drive :func:`lock_step_round` with copies whose episodes last the given numbers of steps.
+
+    ``lengths[r][k]`` lists the lengths of body k's successive episodes in run r (one copy each); a
+    restart starts the next length. Returns per step [T, R, K] the finished, restart and counted flags.
+    """
+    runs, bodies = len(lengths), len(lengths[0])
+    episode = np.zeros((runs, bodies), int)
+    age = np.zeros((runs, bodies), int)
+    round_ended = jnp.zeros((runs, bodies, 1), bool)
+    record = {"finished": [], "restart": [], "counted": []}
+    for _ in range(steps):
+        age += 1
+        lengths_now = np.array([[lengths[r][k][episode[r, k]] for k in range(bodies)] for r in range(runs)])
+        finished = age == lengths_now
+        restart, round_ended, counted = lock_step_round(round_ended, jnp.asarray(finished)[..., None])
+        restart = np.asarray(restart)[..., 0]
+        episode += restart
+        age[restart] = 0
+        for name, value in (("finished", finished), ("restart", restart), ("counted", counted[..., 0])):
+            record[name].append(np.asarray(value))
+    return {name: np.stack(values) for name, values in record.items()}
+
+
+def test_lock_step_rounds_count_first_episodes_and_cut_the_others_at_the_round_end():
+    """The original training loop: every body resets at a round's start; a round ends when every body
+    has ended its first episode; early finishers keep stepping (auto-reset) and are cut at the round end;
+    a body's steps count while its first episode goes on after them, so it counts its first episode's
+    length less one, and the round stores max(lengths) steps per body."""
+    # Run 0: round 1 lasts 4 steps (body 1's first episode); body 0 ends episodes at 2 and 4. Round 2
+    # lasts 5 steps (body 0's 5-step episode); body 1 ends its 3-step episode and is cut 2 steps into
+    # its next. Run 1 has its own rounds: 3 steps, then 2.
+    lengths = [[[2, 2, 5, 9], [4, 3, 9, 9]], [[3, 2, 9], [1, 2, 1, 9, 9]]]
+    flags = lock_step_episodes(lengths, steps=9)
+    counted, restart = flags["counted"].astype(int), flags["restart"]
+    np.testing.assert_array_equal(counted[:4, 0], [[1, 1], [0, 1], [0, 1], [0, 0]])
+    assert counted[:4, 0].sum(0).tolist() == [2 - 1, 4 - 1]
+    np.testing.assert_array_equal(restart[:4, 0], [[0, 0], [1, 0], [0, 0], [1, 1]])
+    assert counted[4:9, 0].sum(0).tolist() == [5 - 1, 3 - 1]
+    assert restart[4:9, 0, 1].tolist() == [0, 0, 1, 0, 1], "body 1 restarts at the round end..."
+    assert not flags["finished"][8, 0, 1], "...cut mid-episode"
+    np.testing.assert_array_equal(counted[:3, 1], [[1, 0], [1, 0], [0, 0]])
+    np.testing.assert_array_equal(restart[:3, 1], [[0, 1], [0, 0], [1, 1]])
+    np.testing.assert_array_equal(restart[3:5, 1], [[0, 1], [1, 1]])
+
+
+def test_without_lock_step_every_step_counts_and_only_finished_copies_restart():
+    env, reset, step = compiled()
+    assert not env.lock_step
+    _, result = step(reset(jax.random.PRNGKey(0)), random_action(7))
+    np.testing.assert_array_equal(result.counted, True)

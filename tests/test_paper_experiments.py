@@ -113,7 +113,9 @@ def test_figure4_end_to_end_trains_resumes_keeps_and_draws(tmp_path, hopper_fold
             rows = list(csv.DictReader(file))
         assert {row["algorithm"] for row in rows} == {"amorpheus"}
         assert max(int(row["env_steps"]) for row in rows) == 600
-        assert {row["seeds"] for row in rows} == {"2"}
+        # A point averages the seeds that finished an episode in its window: both, or one where the
+        # other's policy stood through the window.
+        assert {row["seeds"] for row in rows} in ({"2"}, {"1", "2"})
     text = report.read_text()
     assert f"| {hopper_folder.name}-amorpheus | 600 |" in text, "wall clock row per run"
     final = paper.final_points(out / "figure4.csv")

@@ -112,15 +112,17 @@ def one_task(tree: Any, task: int) -> Any:
     return jax.tree.map(lambda leaf: leaf[task : task + 1], tree)
 
 
-def by_hand(state: LearnerState, buffer: ReplayBuffer, rng: jax.Array) -> tuple[LearnerState, list[float]]:
-    """The reference code's TD3.train written out: for each body, its run of updates on batches sampled
-    from its ring alone, ``Learner.update`` on one-task batches with the actor stepping when
+def by_hand(
+    state: LearnerState, buffer: ReplayBuffer, rng: jax.Array, count: int = CONFIG.updates
+) -> tuple[LearnerState, list[float]]:
+    """The reference code's TD3.train written out: for each body, its run of ``count`` updates on batches
+    sampled from its ring alone, ``Learner.update`` on one-task batches with the actor stepping when
     it % policy_delay == 0; with the keys make_updates documents. Returns the state and the critic losses in order."""
     keys = jax.random.split(rng, (len(BODIES), CONFIG.updates))
     losses = []
     for task in range(len(BODIES)):
         ring, structure = buffer.replace(data=one_task(buffer.data, task)), one_task(STRUCTURE, task)
-        for it in range(CONFIG.updates):
+        for it in range(count):
             sample_key, noise_key = jax.random.split(keys[task, it])
             batch = sample(ring, sample_key, LEARNER.config.batch_size)
             delayed = jnp.bool_(it % LEARNER.config.policy_delay == 0)
@@ -173,8 +175,40 @@ def test_seed_k_of_two_seeds_is_the_reference_loop_of_seed_k():
         np.testing.assert_allclose(metrics["critic_loss"][seed], losses, rtol=1e-5)
 
 
+def test_with_update_counts_each_seed_takes_its_own_number_of_updates_per_body():
+    """Lock-step rounds: each seed's bodies take (its counted steps) / K updates, the first of the run's
+    slots; the others leave its learner as it is (losses 0), whatever the other seed takes."""
+    initial = [LEARNER.init(key) for key in jax.random.split(jax.random.PRNGKey(7), 2)]
+    buffers = [random_buffer(key, rows=16) for key in jax.random.split(jax.random.PRNGKey(8), 2)]
+    rngs = jax.random.split(jax.random.PRNGKey(9), 2)
+    counts = jnp.array([CONFIG.updates, 1], jnp.int32)
+    seeded = jax.jit(make_updates(STRUCTURE, LEARNER, CONFIG, seeds=2, most_updates=CONFIG.updates))
+    state, metrics = seeded(
+        stacked(initial).replace(updates=initial[0].updates),
+        buffers[0].replace(data=stacked([buffer.data for buffer in buffers])),
+        rngs,
+        counts,
+    )
+    for seed, count in enumerate(counts.tolist()):
+        expected, losses = by_hand(initial[seed], buffers[seed], rngs[seed], count)
+        for name in ("critic_params", "actor_params", "target_critic_params", "critic_optimizer"):
+            for seeds, one in zip(
+                jax.tree.leaves(getattr(state, name)), jax.tree.leaves(getattr(expected, name)), strict=True
+            ):
+                np.testing.assert_allclose(seeds[seed], one, rtol=0, atol=1e-6)
+        taken = np.asarray(metrics["critic_loss"][seed]).reshape(len(BODIES), CONFIG.updates)
+        np.testing.assert_allclose(taken[:, :count].ravel(), losses, rtol=1e-5)
+        assert not taken[:, count:].any(), "slots past the seed's count take no update"
+    steps = optax.tree_utils.tree_get(state.critic_optimizer, "count")
+    assert np.asarray(steps).tolist() == [len(BODIES) * CONFIG.updates, len(BODIES)]
+
+
 def test_the_paper_preset_trains_with_the_original_schedule():
     assert PRESETS["paper"].iteration.schedule == "original" == TrainConfig().iteration.schedule
     assert PRESETS["fast"].iteration.schedule == "all_tasks"
     with pytest.raises(ConfigError, match=r"--iteration\.schedule must be one of original, all_tasks"):
         TrainConfig(iteration=IterationConfig(schedule="per_body"))
+    assert PRESETS["paper"].iteration.rounds and PRESETS["intended"].iteration.rounds
+    assert TrainConfig().iteration.rounds and not PRESETS["fast"].iteration.rounds
+    with pytest.raises(ConfigError, match=r"--iteration\.rounds .* add --iteration\.schedule original"):
+        TrainConfig(iteration=IterationConfig(schedule="all_tasks", rounds=True))

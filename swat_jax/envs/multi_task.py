@@ -10,6 +10,12 @@ Finished copies (terminated, truncated, or unstable) start a new episode in the 
 returns the observation reached *before* that reset, for the replay buffer, and the state holds the
 observation after it, for acting.
 
+With ``lock_step``, the copies also run in the original code's lock-step rounds: a round lasts until every
+copy has ended its first episode of the round; a copy that ended it keeps stepping (its later episodes
+start as usual), and when the round ends every copy starts a new episode, cutting the ones still running.
+A step *counts* (toward the step budget and the number of updates, as the original's step counter) while
+the copy's first episode of the round goes on after it: neither the step that ends it nor the steps after.
+
 Several independent runs (seeds) step together as a leading run axis [R] on every array of the state:
 each run splits its own keys, and the physics sees the runs' copies folded into one batch of R x n.
 Folding, not an outer ``vmap``, is what keeps tracing cheap: ``vmap`` over a function that already vmaps
@@ -67,6 +73,9 @@ class MultiTaskState:
     """Key for the reset noise of the next automatic resets."""
     episodes: EpisodeStats
     """Finished-episode sums per body [K], for logging; clear with ``state.replace(episodes=...)``."""
+    round_ended: jax.Array
+    """[K, n] bool: with lock-step rounds, copies whose first episode of the current round has ended (all
+    False without)."""
 
     @property
     def runs(self) -> tuple[int, ...]:
@@ -86,6 +95,9 @@ class StepResult:
     """bool: the episode ended by a termination condition; the TD target does not bootstrap."""
     truncated: jax.Array
     """bool: the episode hit the time limit; the TD target bootstraps from ``next_observation``."""
+    counted: jax.Array
+    """bool: the step counts toward the budget (every step; with lock-step rounds, only while the copy's
+    first episode of the round goes on after it)."""
 
 
 class MultiTaskEnv:
@@ -101,6 +113,7 @@ class MultiTaskEnv:
         runs: how many instances of this environment one program steps (seeds: a leading run axis of the
             state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
             per call (a step derives the stepped and the fresh copies together).
+        lock_step: run in the original code's lock-step rounds (module docstring), each run on its own.
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -117,6 +130,7 @@ class MultiTaskEnv:
         stale_kinematics: bool = False,
         physics: Implementation = "jax",
         runs: int = 1,
+        lock_step: bool = False,
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
@@ -144,6 +158,7 @@ class MultiTaskEnv:
                 + "; train families with different limb-type vocabularies separately"
             )
         self.copies = copies
+        self.lock_step = lock_step
         self.max_limbs = largest.num_limbs if max_limbs is None else max_limbs
         self.observation_features = self.envs[0].observation_features
 
@@ -166,6 +181,7 @@ class MultiTaskEnv:
         return (
             self.copies,
             self.max_limbs,
+            self.lock_step,
             *(
                 (env.morphology, env.torso_relative_x, env.stale_kinematics, _model_digest(env.mj_model))
                 for env in self.envs
@@ -188,29 +204,44 @@ class MultiTaskEnv:
             observation=self._padded_observation(bodies, runs),
             rng=rng,
             episodes=EpisodeStats.zeros(self.num_bodies, runs),
+            round_ended=jnp.zeros((*runs, self.num_bodies, self.copies), bool),
         )
 
     def step(self, state: MultiTaskState, action: jax.Array) -> tuple[MultiTaskState, StepResult]:
-        """Apply ``action`` [*R, K, n, L] (padded limbs ignored) to every copy; reset finished copies."""
+        """Apply ``action`` [*R, K, n, L] (padded limbs ignored) to every copy; reset finished copies (and,
+        with lock-step rounds, every copy when the round ends)."""
         runs = state.runs
         rng, *keys = self._split(state.rng, runs)
-        stepped, continued = [], []
-        for k, (env, body_state, key) in enumerate(zip(self.envs, state.bodies, keys, strict=True)):
-            after_step, fresh = _step_and_restart(
+        both = [
+            _step_and_restart(
                 env,
                 _folded(body_state, runs, self.copies),
                 _folded(action[..., k, :, : env.num_limbs], runs, self.copies),
                 _folded(self._copy_keys(key, runs), runs, self.copies),
             )
-            stepped.append(_unfolded(after_step, runs, self.copies))
-            continued.append(_unfolded(_where_done(after_step.done, fresh, after_step), runs, self.copies))
+            for k, (env, body_state, key) in enumerate(zip(self.envs, state.bodies, keys, strict=True))
+        ]
+        stepped = [_unfolded(after_step, runs, self.copies) for after_step, _ in both]
         axis = len(runs)
         finished = jnp.stack([body.done for body in stepped], axis)
+        if self.lock_step:
+            restart, round_ended, counted = lock_step_round(state.round_ended, finished)
+        else:
+            restart, round_ended, counted = finished, state.round_ended, jnp.ones_like(finished)
+        continued = tuple(
+            _unfolded(
+                _where_done(_folded(restart[..., k, :], runs, self.copies), fresh, after_step),
+                runs,
+                self.copies,
+            )
+            for k, (after_step, fresh) in enumerate(both)
+        )
         result = StepResult(
             next_observation=self._padded_observation(stepped, runs),
             reward=jnp.stack([body.reward for body in stepped], axis),
             terminated=jnp.stack([body.terminated for body in stepped], axis),
             truncated=jnp.stack([body.truncated for body in stepped], axis),
+            counted=counted,
         )
 
         def finished_sum(values: list[jax.Array]) -> jax.Array:
@@ -221,12 +252,12 @@ class MultiTaskEnv:
             length_sum=state.episodes.length_sum + finished_sum([b.episode_length for b in stepped]),
             count=state.episodes.count + jnp.sum(finished, axis=-1, dtype=jnp.int32),
         )
-        continued = tuple(continued)
         next_state = MultiTaskState(
             bodies=continued,
             observation=self._padded_observation(continued, runs),
             rng=rng,
             episodes=episodes,
+            round_ended=round_ended,
         )
         return next_state, result
 
@@ -250,6 +281,24 @@ class MultiTaskEnv:
             ],
             len(runs),
         )
+
+
+def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """One step of the original code's lock-step rounds (its training loop's ``done_list`` bookkeeping).
+
+    Args:
+        round_ended: [*R, K, n] bool, copies whose first episode of the round ended before this step.
+        finished: [*R, K, n] bool, copies whose episode this step ended (terminated or truncated).
+
+    Returns:
+        ``(restart, round_ended, counted)``, each [*R, K, n] bool: the copies that start a new episode (the
+        finished ones, and every copy of a run whose round this step ended: all its copies have ended
+        their first episode), the copies whose first episode of the (next) round has ended, and the steps
+        that count (the copy's first episode of the round goes on after this step).
+    """
+    ended = round_ended | finished
+    round_over = jnp.all(ended, axis=(-2, -1), keepdims=True)
+    return finished | round_over, ended & ~round_over, ~ended
 
 
 def _per_run(function: Callable, runs: tuple[int, ...]) -> Callable:

@@ -3,10 +3,11 @@
 ``python -m swat_jax.train`` parses a :class:`TrainConfig` with tyro, so every field's docstring is its
 ``--help`` line. A preset is a whole :class:`TrainConfig` used as the defaults that flags override:
 
-- ``paper``: the paper's and the reference code's: one environment copy per task and the ``original``
-  update schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100
-  steps per task, task after task takes 100 updates on batches of 100 from its own replay, one Adam step
-  per environment step summed over tasks.
+- ``paper``: the paper's and the reference code's: one environment copy per task, the reference code's
+  lock-step rounds (:attr:`~swat_jax.td3.iteration.IterationConfig.rounds`) and the ``original`` update
+  schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100 steps per
+  task, task after task takes (counted steps summed over tasks) / tasks updates on batches of 100 from
+  its own replay, one Adam step per counted environment step.
 - ``intended``: the ``paper`` preset with every quirk of the original code fixed (:data:`FIXES`): the
   paper's intended method on the original's schedule.
 - ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
@@ -96,7 +97,7 @@ class TrainConfig:
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
     copies: int = 1
     """Parallel environment copies per body."""
-    iteration: IterationConfig = dataclasses.field(default_factory=IterationConfig)
+    iteration: IterationConfig = dataclasses.field(default_factory=lambda: IterationConfig(rounds=True))
     """One jitted iteration: per-copy steps collected (chunk), updates and their schedule, random steps, noise, replay capacity."""
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
@@ -166,6 +167,11 @@ class TrainConfig:
         if self.iteration.schedule not in SCHEDULES:
             raise ConfigError(
                 f"--iteration.schedule must be one of {', '.join(SCHEDULES)}, got {self.iteration.schedule!r}"
+            )
+        if self.iteration.rounds and self.iteration.schedule != "original":
+            raise ConfigError(
+                "--iteration.rounds sets each body's updates from the counted steps, which only the original "
+                "schedule takes; add --iteration.schedule original or --iteration.no-rounds"
             )
         _require_positive("--td3.batch-size", self.td3.batch_size)
         _require_positive("--td3.policy-delay", self.td3.policy_delay)
@@ -247,7 +253,7 @@ PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(
         preset="paper",
         copies=1,
-        iteration=IterationConfig(chunk=100, updates=100, schedule="original"),
+        iteration=IterationConfig(chunk=100, updates=100, schedule="original", rounds=True),
         torso_relative_x=False,
         reference_inorder=True,
         stale_kinematics=True,
@@ -255,7 +261,7 @@ PRESETS: dict[str, TrainConfig] = {
     "intended": TrainConfig(
         preset="intended",
         copies=1,
-        iteration=IterationConfig(chunk=100, updates=100, schedule="original"),
+        iteration=IterationConfig(chunk=100, updates=100, schedule="original", rounds=True),
         **FIXES,
     ),
     "fast": TrainConfig(

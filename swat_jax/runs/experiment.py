@@ -68,6 +68,7 @@ class Experiment:
             stale_kinematics=config.stale_kinematics,
             physics=config.physics,
             runs=config.seeds,
+            lock_step=config.iteration.rounds,
         )
         if config.init_from:
             _check_transfer(config, env.observation_features)

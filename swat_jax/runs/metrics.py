@@ -89,7 +89,7 @@ def standard_error(values: np.ndarray) -> float:
 
 class MetricsWindow:
     """Per-seed sums since the last metrics row: each iteration's mean losses and the episodes each body
-    finished (sums of returns and lengths, and their count).
+    finished (sums of returns and lengths, and their count), and the latest iteration's ``counted_steps``.
 
     Saved in checkpoints (:meth:`to_json`), so the row after a resume sums the same iterations, in the same
     order, as an uninterrupted run's.
@@ -106,15 +106,17 @@ class MetricsWindow:
     @staticmethod
     def _shapes(seeds: int, bodies: int) -> dict[str, tuple[int, ...]]:
         return {
-            **{name: (seeds,) for name in LOSSES},
+            **{name: (seeds,) for name in (*LOSSES, "counted_steps")},
             **{name: (seeds, bodies) for name in ("return_sum", "length_sum", "count")},
         }
 
     def add(self, metrics: dict[str, Any]) -> None:
         """One iteration's metrics: losses [S, U], one per update (U: bodies x updates with the original
-        schedule, updates with all_tasks), and ``episodes`` (EpisodeStats of [S, K] arrays)."""
+        schedule, updates with all_tasks), ``episodes`` (EpisodeStats of [S, K] arrays) and
+        ``counted_steps`` [S], the steps counted since the run's start (kept, not summed)."""
         for name in LOSSES:
             self.sums[name] += np.mean(np.asarray(metrics[name]), axis=-1)
+        self.sums["counted_steps"][...] = np.asarray(metrics["counted_steps"])
         episodes = metrics["episodes"]
         for name in ("return_sum", "length_sum", "count"):
             self.sums[name] += np.asarray(getattr(episodes, name))
@@ -122,7 +124,8 @@ class MetricsWindow:
 
     def rows(self, seeds: Sequence[int], body_names: Sequence[str]) -> list[dict[str, float]]:
         """One row per seed: mean losses over the window's iterations, the mean return over bodies of the
-        episodes they finished, and per body the mean return, mean length and count of those episodes."""
+        episodes they finished, per body the mean return, mean length and count of those episodes, and the
+        steps counted since the run's start (``counted_steps``)."""
         count = self.sums["count"]
         with np.errstate(invalid="ignore", divide="ignore"):
             returns = self.sums["return_sum"] / count
@@ -133,6 +136,7 @@ class MetricsWindow:
             row: dict[str, float] = {"seed": seed}
             row |= {name: float(self.sums[name][index] / max(self.iterations, 1)) for name in LOSSES}
             row["mean_return"] = float(np.mean(finished)) if finished.size else math.nan
+            row["counted_steps"] = int(self.sums["counted_steps"][index])
             for body, episode_return, length, n in zip(
                 body_names, returns[index], lengths[index], count[index], strict=True
             ):

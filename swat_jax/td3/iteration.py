@@ -45,6 +45,9 @@ class TrainState:
     rng: jax.Array
     env_steps: jax.Array
     """[] int32 environment steps taken per task, summed over its copies (copies x chunk per iteration)."""
+    counted: jax.Array
+    """[] int32 environment steps counted so far, summed over tasks and copies: every step, or with lock-step
+    rounds (:attr:`IterationConfig.rounds`) only the steps the original code counts."""
 
 
 SEED_AXES = TrainState(
@@ -61,6 +64,7 @@ SEED_AXES = TrainState(
     env=0,
     rng=0,
     env_steps=None,
+    counted=0,
 )
 """vmap axes of a multi-seed :class:`TrainState`.
 
@@ -82,7 +86,9 @@ class IterationConfig:
     chunk: int = 100
     """Environment steps per copy collected per iteration."""
     updates: int = 100
-    """TD3 updates per iteration: per body with the original schedule (chunk x copies of them give one Adam step per environment step, as the reference code), in all with all_tasks."""
+    """TD3 updates per iteration: per body with the original schedule (chunk x copies of them give one Adam step per environment step, as the reference code), in all with all_tasks. With rounds, the counted steps set them instead."""
+    rounds: bool = False
+    """The original code's lock-step rounds (needs the original schedule): a round lasts until every copy has ended its first episode of the round, then all copies restart; only the steps of those first episodes count, and each body takes (counted steps summed over bodies) / bodies updates, so the copies that ended early store more transitions than are updated on. The random phase then lasts random_steps x bodies counted steps, as the original's."""
     schedule: Schedule = "original"
     """Update order after collecting. original (the reference code's): body after body, each takes its updates on batches from its own replay alone, one Adam step each, with the delayed actor step in the first of every policy_delay of them. all_tasks: each update is one Adam step on the mean loss over a batch from every body."""
     random_steps: int = 10_000
@@ -121,6 +127,7 @@ def _init_state(
         env=env.reset(env_key),
         rng=rng,
         env_steps=jnp.zeros((), jnp.int32),
+        counted=over_seeds(lambda _: jnp.zeros((), jnp.int32))(learner_key),
     )
 
 
@@ -140,8 +147,10 @@ def make_train_iteration(
 
     metrics: per-update critic and actor losses in the order the updates ran ([K * updates] with the
     original schedule, [updates] with all_tasks; :func:`make_updates`), per-task rewards of the chunk
-    [chunk, K, n], and ``episodes``, the sums over the episodes each task finished during this iteration
-    (EpisodeStats, [K]).
+    [chunk, K, n], ``episodes``, the sums over the episodes each task finished during this iteration
+    (EpisodeStats, [K]), and ``counted_steps`` [], the steps counted since the run's start
+    (:attr:`TrainState.counted`). With rounds, each task's run of updates has chunk x copies slots, the
+    first (counted steps summed over tasks) / K of them updating (:func:`make_updates`).
     """
     return _make_iteration(env, structure, learner, config, seeded=False)
 
@@ -199,14 +208,19 @@ def _seed_axis(tree: Any, axes: Any, change: Callable[[jax.Array], jax.Array]) -
 
 Updated = tuple[LearnerState, dict[str, jax.Array]]
 """A learner state after updates, and their losses."""
-UpdatePhase = Callable[[LearnerState, ReplayBuffer, jax.Array], Updated]
-"""``updates(learner_state, buffer, rng) -> (learner_state, metrics)``: the TD3 updates of one iteration."""
+UpdatePhase = Callable[..., Updated]
+"""``updates(learner_state, buffer, rng[, counts]) -> (learner_state, metrics)``: the TD3 updates of one
+iteration (``counts``: see :func:`make_updates`)."""
 
 
 def make_updates(
-    structure: StructureBatch, learner: Learner, config: IterationConfig, seeds: int | None = None
+    structure: StructureBatch,
+    learner: Learner,
+    config: IterationConfig,
+    seeds: int | None = None,
+    most_updates: int | None = None,
 ) -> UpdatePhase:
-    """The TD3 updates of one iteration, ``updates(learner_state, buffer, rng)``, in the order of
+    """The TD3 updates of one iteration, ``updates(learner_state, buffer, rng, counts=None)``, in the order of
     ``config.schedule``:
 
     - ``original``, the reference code's ``TD3.train``: the K tasks in ``structure``'s order, each taking
@@ -222,10 +236,15 @@ def make_updates(
     An update's key splits into the key of its replay sample and that of its target smoothing noise; an
     update before the buffer holds ``batch_size`` rows per task leaves the learner as it is (losses 0).
 
+    With ``counts`` [(S)] int32 (the original schedule only: lock-step rounds), each task's run has
+    ``most_updates`` slots of which the first ``counts`` update (per seed); the rest leave the learner as
+    it is (losses 0), and slots past every seed's count are skipped.
+
     Args:
         structure: [K, ...] the tasks' structure, padded to the buffer's limb count.
         seeds: the size of the leading seed axis of the learner state, buffer and ``rng``
             (:data:`SEED_AXES`); None for a state without one.
+        most_updates: the slots of each task's run with ``counts``; None: ``config.updates``.
 
     metrics: ``critic_loss`` and ``actor_loss`` per update, in the order the updates ran: [K * updates]
     (task after task) or [updates], behind a leading [S] with a seed axis.
@@ -261,18 +280,46 @@ def make_updates(
             buffer, lambda s: task_learner.update(s, batch, task_structure, noise_key, delayed), learner_state
         )
 
+    def counted_task_update(
+        learner_state: LearnerState,
+        buffer: ReplayBuffer,
+        rng: jax.Array,
+        task: jax.Array,
+        delayed: jax.Array,
+        active: jax.Array,
+    ) -> Updated:
+        """:func:`task_update` where ``active`` [] bool, else the state unchanged with zero losses. The
+        update counter is shared by the seeds and counts the slot either way (the original schedule's
+        delayed step is ``delayed``, not the counter's)."""
+        updated, metrics = task_update(learner_state, buffer, rng, task, delayed)
+        kept = jax.tree.map(lambda new, old: jnp.where(active, new, old), updated, learner_state)
+        return kept.replace(updates=updated.updates), jax.tree.map(
+            lambda m: jnp.where(active, m, 0.0), metrics
+        )
+
     seeded_axes = (SEED_AXES.learner, SEED_AXES.buffer, 0)
     all_tasks_updated = over_seeds(all_tasks_update, in_axes=seeded_axes, out_axes=(SEED_AXES.learner, 0))
     task_updated = over_seeds(
         task_update, in_axes=(*seeded_axes, None, None), out_axes=(SEED_AXES.learner, 0)
     )
+    counted_task_updated = over_seeds(
+        counted_task_update, in_axes=(*seeded_axes, None, None, 0), out_axes=(SEED_AXES.learner, 0)
+    )
+    run_length = config.updates if most_updates is None else most_updates
+    seed_shape = () if seeds is None else (seeds,)
 
-    def all_tasks(learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array) -> Updated:
+    def all_tasks(
+        learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array, counts: jax.Array | None
+    ) -> Updated:
         """keys [updates, (S,) 2] -> metrics [updates, (S)]."""
+        if counts is not None:
+            raise ValueError("update counts (lock-step rounds) need the original schedule")
         return jax.lax.scan(lambda s, key: all_tasks_updated(s, buffer, key), learner_state, keys)
 
-    def original(learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array) -> Updated:
-        """keys [K, updates, (S,) 2] -> metrics [K, updates, (S)]."""
+    def original(
+        learner_state: LearnerState, buffer: ReplayBuffer, keys: jax.Array, counts: jax.Array | None
+    ) -> Updated:
+        """keys [K, run_length, (S,) 2] -> metrics [K, run_length, (S)]."""
 
         def task_run(learner_state: LearnerState, task_and_keys: tuple[jax.Array, jax.Array]) -> Updated:
             task, task_keys = task_and_keys
@@ -282,21 +329,37 @@ def make_updates(
                 delayed = it % learner.config.policy_delay == 0
                 return task_updated(learner_state, buffer, key, task, delayed)
 
-            return jax.lax.scan(step, learner_state, (jnp.arange(config.updates), task_keys))
+            if counts is None:
+                return jax.lax.scan(step, learner_state, (jnp.arange(run_length), task_keys))
+
+            def counted_step(it: jax.Array, carry: Updated) -> Updated:
+                """Slot ``it``: an update for the seeds whose count it is below; losses into row ``it``."""
+                learner_state, losses = carry
+                delayed = it % learner.config.policy_delay == 0
+                learner_state, metrics = counted_task_updated(
+                    learner_state, buffer, task_keys[it], task, delayed, it < counts
+                )
+                return learner_state, jax.tree.map(lambda all_, one: all_.at[it].set(one), losses, metrics)
+
+            # Only as many slots as the largest count: a loop of that many steps, not a scan of run_length.
+            no_losses = {name: jnp.zeros((run_length, *seed_shape)) for name in ("critic_loss", "actor_loss")}
+            return jax.lax.fori_loop(0, jnp.max(counts), counted_step, (learner_state, no_losses))
 
         return jax.lax.scan(task_run, learner_state, (jnp.arange(num_tasks), keys))
 
     run, shape = {
-        "original": (original, (num_tasks, config.updates)),
+        "original": (original, (num_tasks, run_length)),
         "all_tasks": (all_tasks, (config.updates,)),
     }[config.schedule]
     seed_dims = 0 if seeds is None else 1
 
-    def updates(learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array) -> Updated:
+    def updates(
+        learner_state: LearnerState, buffer: ReplayBuffer, rng: jax.Array, counts: jax.Array | None = None
+    ) -> Updated:
         keys = over_seeds(lambda key: jax.random.split(key, shape))(rng)
         # The scans run over the schedule's axes: the seed axis goes behind them, and in front again after.
         keys = jnp.moveaxis(keys, 0, len(shape)) if seed_dims else keys
-        learner_state, metrics = run(learner_state, buffer, keys)
+        learner_state, metrics = run(learner_state, buffer, keys, counts)
         flat = jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[len(shape) :]), metrics)
         return learner_state, jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, seed_dims), flat)
 
@@ -317,13 +380,24 @@ def _make_iteration(
     structure = jax.tree_util.tree_map(jnp.asarray, structure)
     mask = structure.limb_mask[:, None, :]
 
-    def act(actor_params: Params, observation: jax.Array, env_steps: jax.Array, rng: jax.Array) -> jax.Array:
+    num_tasks = structure.limb_mask.shape[0]
+
+    def random_phase(state: TrainState) -> jax.Array:
+        """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
+        [(S)], per seed: fewer than ``random_steps`` x tasks steps counted (the original's rule)."""
+        if config.rounds:
+            return state.counted < config.random_steps * num_tasks
+        return state.env_steps < config.random_steps
+
+    def act(
+        actor_params: Params, observation: jax.Array, uniform_phase: jax.Array, rng: jax.Array
+    ) -> jax.Array:
         """[K, n, L] exploration actions for the observations [K, n, L, F] of one seed."""
         policy_key, random_key = jax.random.split(rng)
         policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(actor_params, observation, structure)
         noise = config.exploration_noise * jax.random.normal(policy_key, policy.shape)
         uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
-        action = jnp.where(env_steps < config.random_steps, uniform, jnp.clip(policy + noise, -1.0, 1.0))
+        action = jnp.where(uniform_phase, uniform, jnp.clip(policy + noise, -1.0, 1.0))
         return jnp.where(mask, action, 0.0)
 
     def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
@@ -331,12 +405,18 @@ def _make_iteration(
         over_seeds = _seed_map(seeds[0] if seeds else None)
         split = over_seeds(lambda key: tuple(jax.random.split(key)))
         inserted = over_seeds(insert, in_axes=(SEED_AXES.buffer, 0), out_axes=SEED_AXES.buffer)
-        acted = over_seeds(act, in_axes=(0, 0, None, 0))
-        updates = make_updates(structure, learner, config, seeds[0] if seeds else None)
+        acted = over_seeds(act, in_axes=(0, 0, 0 if config.rounds else None, 0))
+        updates = make_updates(
+            structure,
+            learner,
+            config,
+            seeds[0] if seeds else None,
+            most_updates=config.chunk * env.copies if config.rounds else None,
+        )
 
         def collect(state: TrainState, _) -> tuple[TrainState, jax.Array]:
             rng, act_key = split(state.rng)
-            action = acted(state.learner.actor_params, state.env.observation, state.env_steps, act_key)
+            action = acted(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
             env_state, result = env.step(state.env, action)
             transitions = Transitions(
                 observation=state.env.observation,
@@ -350,18 +430,24 @@ def _make_iteration(
                 env=env_state,
                 rng=rng,
                 env_steps=state.env_steps + env.copies,
+                counted=state.counted + jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32),
             )
             return next_state, result.reward
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, seeds)))
+        counted_before = state.counted
         state, rewards = jax.lax.scan(collect, state, None, length=config.chunk)
         rng, update_key = split(state.rng)
-        learner_state, metrics = updates(state.learner, state.buffer, update_key)
+        # The original's per_morph_iter: each task takes (counted steps summed over tasks) // tasks updates;
+        # counting from the run's start carries the remainder to the next iteration.
+        counts = state.counted // num_tasks - counted_before // num_tasks if config.rounds else None
+        learner_state, metrics = updates(state.learner, state.buffer, update_key, counts)
         # Scans stack their outputs in front: the seed axis goes back first.
         metrics = {
             **metrics,
             "reward": jnp.moveaxis(rewards, 0, len(seeds)),
             "episodes": state.env.episodes,
+            "counted_steps": state.counted,
         }
         return state.replace(learner=learner_state, rng=rng), metrics
 

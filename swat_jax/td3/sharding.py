@@ -42,10 +42,15 @@ def task_axes(tasks_split: bool, copies_split: bool) -> TrainState:
         learner=None,
         buffer=ReplayBuffer(data=0 if tasks_split else None, position=None, size=None),
         env=MultiTaskState(
-            bodies=0 if copies_split else None, observation=observation, rng=None, episodes=None
+            bodies=0 if copies_split else None,
+            observation=observation,
+            rng=None,
+            episodes=None,
+            round_ended=observation,
         ),
         rng=None,
         env_steps=None,
+        counted=None,
     )
 
 

@@ -1,0 +1,109 @@
+"""The update phase of one paper-preset iteration with and without lock-step rounds.
+
+The ``original`` schedule runs, body after body, a fixed ``updates`` per body without rounds; with rounds
+(``--iteration.rounds``) each seed takes its own count (its counted steps / bodies), so the loop runs the
+largest seed's count of slots and the other seeds skip the slots past theirs. This times one iteration's
+update phase (``make_updates``) on a replay of random rows, for several seeds in one program: the fixed
+``chunk`` updates per body (the baseline) and per-seed counts, all equal to ``chunk`` and spread below it,
+and prints each against the baseline measured in the same run (per slot: per update the loop runs).
+
+    python experiments/rounds_benchmark.py [--set walker] [--seeds 4] [--width 32] [--layers 1]
+        [--capacity 50000] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from machine import cpu_model
+
+from swat_jax.morphology import get_set, load, pad_structures
+from swat_jax.networks import make_actor_critic, network_config
+from swat_jax.td3.iteration import IterationConfig, make_updates
+from swat_jax.td3.learner import Learner, TD3Config
+from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer
+
+CHUNK = 100
+FEATURES = 19
+"""Observation features per limb of the four-type families (Hopper++, Walker++, Cheetah++, Humanoid++)."""
+
+
+def random_replay(seeds: int, tasks: int, capacity: int, limbs: int, rng: jax.Array) -> ReplayBuffer:
+    """A full replay [S, K, capacity, ...] of random rows."""
+    shape = init_buffer(tasks, capacity, limbs, FEATURES).data.action.shape
+    keys = jax.random.split(rng, 4)
+    data = Transitions(
+        observation=jax.random.normal(keys[0], (seeds, *shape, FEATURES)),
+        action=jax.random.uniform(keys[1], (seeds, *shape), minval=-1.0),
+        reward=jax.random.normal(keys[2], (seeds, *shape[:2])),
+        next_observation=jax.random.normal(keys[3], (seeds, *shape, FEATURES)),
+        terminated=jnp.zeros((seeds, *shape[:2]), bool),
+    )
+    return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.full((), capacity, jnp.int32))
+
+
+def seconds_per_call(function: Callable[..., Any], *args: Any, repeats: int) -> float:
+    """Mean wall clock of ``repeats`` calls after a warm-up (compiling) one."""
+    jax.block_until_ready(function(*args))
+    start = time.perf_counter()
+    for _ in range(repeats):
+        out = function(*args)
+    jax.block_until_ready(out)
+    return (time.perf_counter() - start) / repeats
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--set", default="walker", help="environment set whose bodies are updated (default walker)"
+    )
+    parser.add_argument("--seeds", type=int, default=4, help="seeds in one program (default 4)")
+    parser.add_argument("--width", type=int, default=32, help="SWAT width (default 32; the paper's is 128)")
+    parser.add_argument("--layers", type=int, default=1, help="SWAT layers (default 1; the paper's is 3)")
+    parser.add_argument("--capacity", type=int, default=50_000, help="replay rows per body (default 50000)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed calls per measurement (default 3)")
+    args = parser.parse_args()
+
+    bodies = [load(name) for name in get_set(args.set).train]
+    limbs = max(body.num_limbs for body in bodies)
+    structure = pad_structures(bodies, max_limbs=limbs)
+    network = network_config(
+        "swat", width=args.width, heads=2, layers=args.layers, feedforward=2 * args.width
+    )
+    actor, critic = make_actor_critic(network, FEATURES)
+    learner = Learner(actor, critic, TD3Config(batch_size=100), ())
+    config = IterationConfig(chunk=CHUNK, updates=CHUNK, schedule="original")
+    seeds, tasks = args.seeds, len(bodies)
+    replay = random_replay(seeds, tasks, args.capacity, limbs, jax.random.PRNGKey(0))
+    state = jax.vmap(learner.init)(jax.random.split(jax.random.PRNGKey(1), seeds))
+    state = state.replace(updates=state.updates[0])
+    rngs = jax.random.split(jax.random.PRNGKey(2), seeds)
+
+    fixed = jax.jit(make_updates(structure, learner, config, seeds=seeds))
+    counted = jax.jit(make_updates(structure, learner, config, seeds=seeds, most_updates=CHUNK))
+    baseline = seconds_per_call(fixed, state, replay, rngs, repeats=args.repeats)
+    cases = [(f"no rounds: {CHUNK} updates per body", baseline, CHUNK)]
+    spread = jnp.linspace(0.7 * CHUNK, 0.85 * CHUNK, seeds).astype(jnp.int32)
+    for counts in (jnp.full((seeds,), CHUNK, jnp.int32), spread):
+        seconds = seconds_per_call(counted, state, replay, rngs, counts, repeats=args.repeats)
+        cases.append((f"rounds, counts {int(counts.min())}-{int(counts.max())}", seconds, int(counts.max())))
+    print(
+        f"{args.set}: {tasks} bodies, {seeds} seeds, SWAT width {args.width} x {args.layers} layers; {cpu_model()}"
+    )
+    print("| update phase | s per iteration | ms per slot | per slot vs no rounds |")
+    print("|---|---|---|---|")
+    per_slot_baseline = baseline / (tasks * CHUNK)
+    for label, seconds, slots in cases:
+        per_slot = seconds / (tasks * slots)
+        print(f"| {label} | {seconds:.2f} | {per_slot * 1e3:.1f} | {per_slot / per_slot_baseline:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
