@@ -64,6 +64,7 @@ from paper import (
 )
 from scipy import stats
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
 from swat_jax.plot import CurvePoint, curves_figure, save, summarise, write_points_csv
@@ -257,6 +258,8 @@ class Original:
         """Why it cannot run here, or None."""
         if not self.python.is_file():
             return f"no original-code venv at {self.python} (give --original-python)"
+        if self.tools == Path():
+            return "no folder of the original's tools: give --original-tools DIR or set $ORIGINAL_TOOLS"
         if not (self.tools / "run_trainer.py").is_file():
             return f"no run_trainer.py in {self.tools} (give --original-tools)"
         return None
@@ -839,6 +842,7 @@ def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Ori
 
 
 def main(argv: list[str] | None = None) -> int:
+    enable_caches()
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
     out = args.out or Path("experiments/results/against_original")

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from machine import cpu_model, host_cores, software_versions
 
-from swat_jax.compilation_cache import PROGRAMS
+from swat_jax.compilation_cache import PROGRAMS, enable_caches
 
 PHASES = ("build", "init_state", "trace", "compile", "first_call")
 """Seconds to the first trained iteration, in order. ``trace`` is JAX's tracing and lowering of the
@@ -102,6 +102,7 @@ def run_child(
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

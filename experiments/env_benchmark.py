@@ -46,7 +46,7 @@ import mujoco
 import numpy as np
 from machine import cpu_model, host_cores, host_memory_gib, software_versions
 
-from swat_jax.compilation_cache import cache_directory
+from swat_jax.compilation_cache import cache_directory, enable_caches
 from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
 from swat_jax.morphology import get_set, load
 from swat_jax.morphology.mjcf import compile_model
@@ -444,6 +444,7 @@ def parse_arguments() -> argparse.Namespace:
 
 
 def main() -> None:
+    enable_caches()
     args = parse_arguments()
     if args.worker:
         run_worker(json.loads(args.worker))

@@ -2,7 +2,7 @@
 
 Trains nothing: a paper-sized actor (``network_config(NETWORK)``, Table 1 sizes) with random parameters is
 exported for every body of an environment set (train and test, padded to the set's largest body) and
-read back with ``swat_jax.export.load``. Both are then called on the set's largest body, at each batch
+read back with ``swat_jax.serving.load``. Both are then called on the set's largest body, at each batch
 size, with random observations (zero on padded limbs):
 
 - exported: ``policy(observation, structure)``, the loaded file's own call (input checks included), the
@@ -31,7 +31,8 @@ import numpy as np
 from machine import cpu_model
 from update_benchmark import observation_features
 
-from swat_jax import export
+from swat_jax import export, serving
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config, param_count
 
@@ -76,7 +77,7 @@ def benchmark(
     export.write_policy(path, program, structures, [body.name for body in bodies], features, algo=network)
     export_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    policy = export.load(path)
+    policy = serving.load(path)
     load_seconds = time.perf_counter() - start
 
     structure = policy.structure(bodies[row].name)
@@ -109,6 +110,7 @@ def benchmark(
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--set", default="cwhh", help="environment set whose bodies the file holds (default cwhh)"

@@ -51,7 +51,8 @@ from env_benchmark import (
 from machine import cpu_model, host_cores, host_memory_gib
 from update_benchmark import vmapped_throughput
 
-from swat_jax.compilation_cache import cache_directory
+from swat_jax.cli import strict_json
+from swat_jax.compilation_cache import cache_directory, enable_caches
 from swat_jax.networks import network_config
 
 MIN_GAIN = 1.05
@@ -324,7 +325,7 @@ def write_report(report: dict[str, Any], folder: Path) -> list[Path]:
     """``report.json`` and ``report.md`` in ``folder`` (created)."""
     folder.mkdir(parents=True, exist_ok=True)
     json_path, markdown_path = (folder / name for name in REPORT_FILES)
-    json_path.write_text(json.dumps(report, indent=2) + "\n")
+    json_path.write_text(strict_json(report, indent=2) + "\n")
     markdown_path.write_text(markdown(report))
     return [json_path, markdown_path]
 
@@ -370,6 +371,7 @@ def parse_arguments() -> argparse.Namespace:
 
 
 def main() -> None:
+    enable_caches()
     args = parse_arguments()
     if args.worker:
         run_worker(json.loads(args.worker), REPORT_WORKERS)

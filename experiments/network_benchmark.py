@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from machine import cpu_model
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import LimbNetwork, make_actor_critic, network_config
 
@@ -82,6 +83,7 @@ def benchmark_set(set_name: str, features: int, batch: int, repeats: int) -> tup
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (median)")
     parser.add_argument("--batch", type=int, default=100, help="observations per task")

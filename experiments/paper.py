@@ -38,12 +38,13 @@ from pathlib import Path
 
 from machine import cpu_model, host_cores, software_versions
 
+from swat_jax.cli import strict_json
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.plot import plot_curves
 from swat_jax.runs.checkpoint import Checkpoints
-from swat_jax.runs.config import TrainConfig, load_config
-from swat_jax.runs.experiment import CONFIG_FILE
+from swat_jax.runs.config import CONFIG_FILE, TrainConfig, load_config
 from swat_jax.train import INTERRUPTED_STATUS, parse_command
 
 MAIN_ALGORITHMS = ("swat", "amorpheus", "smp")
@@ -264,7 +265,7 @@ def add_timing(out: Path, name: str, seconds: float) -> None:
     timings = read_timings(out)
     timings[name] = timings.get(name, 0.0) + seconds
     out.mkdir(parents=True, exist_ok=True)
-    (out / TIMINGS_FILE).write_text(json.dumps(timings, indent=2) + "\n")
+    (out / TIMINGS_FILE).write_text(strict_json(timings, indent=2) + "\n")
 
 
 def exit_status(work: Callable[[], Path | None]) -> int:
@@ -452,6 +453,7 @@ def produce(
 
 
 def main(argv: list[str] | None = None) -> int:
+    enable_caches()
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
     scale = SCALES[args.scale]

@@ -5,11 +5,12 @@ compiles its training iteration (reported separately), runs one warm-up iteratio
 ``--iterations`` iterations; the policy acts from the first step (``random_steps=0``) so the timed
 iterations are the steady state. Reported: environment steps per second summed over bodies (with the
 paper preset's lock-step rounds, the steps it counts: fewer than it takes), sampled transitions per second
-of TD3 update work (updates x batch / s), and both as ratios to the ``paper`` preset measured in the same
-run.
+of TD3 update work (updates x batch / s), and both as ratios to the first preset (``paper`` by default) measured in
+the same run. ``--collection`` adds the paper preset's collection alone.
 
     python experiments/preset_benchmark.py [--env hopper] [--algo swat] [--iterations 3]
         [--capacity 100000] [--fast-copies 16 64]
+        [--presets paper fast] [--collection]
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from collections.abc import Sequence
 import jax
 from machine import cpu_model
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.runs.config import PRESETS, TrainConfig
 from swat_jax.runs.experiment import Experiment
 
@@ -37,6 +39,9 @@ class Measurement:
     """Adam steps of the critic per second, summed over bodies."""
     transitions_per_second: float
     """Transitions sampled by those updates per second."""
+    seconds_per_iteration: float
+    stored_per_counted: float
+    """Environment steps taken (and stored) per step counted: above 1 with lock-step rounds."""
 
 
 def measure(
@@ -66,6 +71,7 @@ def measure(
     else:
         updates = iterations * config.iteration.updates
     batch_rows = config.td3.batch_size * (1 if config.iteration.schedule == "original" else bodies)
+    stored = iterations * config.iteration.chunk * config.copies * bodies
     return Measurement(
         label,
         config,
@@ -73,19 +79,35 @@ def measure(
         (counted - counted_before) / seconds,
         updates / seconds,
         updates * batch_rows / seconds,
+        seconds / iterations,
+        stored / max(counted - counted_before, 1),
     )
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
     parser.add_argument("--algo", default="swat", help="network (default swat, paper-sized)")
+    parser.add_argument(
+        "--presets",
+        nargs="+",
+        default=["paper", "fast"],
+        choices=sorted(PRESETS),
+        help="presets to time, the first the baseline (default paper fast)",
+    )
     parser.add_argument("--iterations", type=int, default=3, help="timed iterations per preset (default 3)")
     parser.add_argument("--capacity", type=int, default=100_000, help="replay rows per body (default 100000)")
     parser.add_argument(
         "--fast-copies", type=int, nargs="*", default=[], help="also time fast with these copy counts"
+    )
+    parser.add_argument(
+        "--collection",
+        action="store_true",
+        help="also time the paper preset's collection alone (no rounds, 1 update per body): with the paper row "
+        "it splits an iteration into stepping the bodies and updating",
     )
     args = parser.parse_args()
 
@@ -94,14 +116,19 @@ def main() -> None:
         iteration = dataclasses.replace(base.iteration, random_steps=0, capacity=args.capacity)
         return dataclasses.replace(base, env=args.env, algo=args.algo, iteration=iteration, **changes)
 
-    runs = [("paper", configured("paper")), ("fast", configured("fast"))]
+    runs = [(preset, configured(preset)) for preset in args.presets]
     runs += [(f"fast, {n} copies", configured("fast", copies=n)) for n in args.fast_copies]
+    if args.collection:
+        paper = configured("paper")
+        collection = dataclasses.replace(paper.iteration, rounds=False, updates=1)
+        runs.append(("paper, collection only", dataclasses.replace(paper, iteration=collection)))
     results = []
     for label, config in runs:
         results.append(measure(label, config, args.iterations))
         r = results[-1]
         print(
-            f"{label}: compile {r.compile_seconds:.0f} s, {r.env_steps_per_second:,.0f} env steps/s",
+            f"{label}: compile {r.compile_seconds:.0f} s, {r.env_steps_per_second:,.1f} env steps/s, "
+            f"{r.seconds_per_iteration:.1f} s per iteration, {r.stored_per_counted:.2f} steps stored per counted",
             flush=True,
         )
 
@@ -112,14 +139,16 @@ def main() -> None:
     )
     print(
         "\n| preset | copies | chunk | updates / iteration | batch per body | compile (s) "
-        "| env steps/s | update transitions/s | env steps/s vs paper | transitions/s vs paper |"
+        "| env steps/s | stored per counted | s per iteration | update transitions/s | env steps/s vs paper "
+        "| transitions/s vs paper |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         c = r.config
         print(
             f"| {r.label} | {c.copies} | {c.iteration.chunk} | {c.iteration.updates} | {c.td3.batch_size} "
-            f"| {r.compile_seconds:.0f} | {r.env_steps_per_second:,.0f} | {r.transitions_per_second:,.0f} "
+            f"| {r.compile_seconds:.0f} | {r.env_steps_per_second:,.1f} | {r.stored_per_counted:.2f} "
+            f"| {r.seconds_per_iteration:.1f} | {r.transitions_per_second:,.0f} "
             f"| {r.env_steps_per_second / paper.env_steps_per_second:.2f} "
             f"| {r.transitions_per_second / paper.transitions_per_second:.2f} |"
         )

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 from machine import cpu_model
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
 from swat_jax.td3.iteration import IterationConfig, make_updates
@@ -58,6 +59,7 @@ def seconds_per_call(function: Callable[..., Any], *args: Any, repeats: int) -> 
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

@@ -22,6 +22,7 @@ import jax
 from machine import cpu_model, host_cores, software_versions
 from preset_benchmark import measure
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.runs.config import TrainConfig
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
@@ -72,6 +73,7 @@ def run_arm(args: argparse.Namespace, devices: int) -> dict:
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
     parser.add_argument("--seeds", type=int, default=4, help="seeds in the program (default 4)")

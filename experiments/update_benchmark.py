@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from machine import cpu_model
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.envs.observation import KINEMATIC_FEATURES
 from swat_jax.morphology import Morphology, StructureBatch, get_set, limb_buckets, load, pad_structures
 from swat_jax.networks import NetworkConfig, make_actor_critic, network_config, param_count
@@ -294,6 +295,7 @@ def reference_report(
 
 
 def main() -> None:
+    enable_caches()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--set", default="animal_walkers", help="environment set (training bodies) to update on"

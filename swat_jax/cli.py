@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 ERROR_STATUS = 2
 """Exit status for a bad input: an option, a body, a run directory or a file name."""
@@ -16,6 +19,25 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
     return value
+
+
+def strict_json(value: Any, indent: int | None = None) -> str:
+    """``value`` as standard JSON: a NaN or infinite number (an undefined statistic, such as the standard
+    error of one seed) becomes ``null``, which every JSON reader accepts (``json.dumps`` would write ``NaN``).
+    NumPy scalars are written as the numbers they hold."""
+
+    def plain(item: Any) -> Any:
+        if isinstance(item, dict):
+            return {key: plain(entry) for key, entry in item.items()}
+        if isinstance(item, (list, tuple)):
+            return [plain(entry) for entry in item]
+        if hasattr(item, "item") and callable(item.item) and getattr(item, "shape", None) == ():
+            item = item.item()
+        if isinstance(item, float) and not math.isfinite(item):
+            return None
+        return item
+
+    return json.dumps(plain(value), indent=indent, allow_nan=False)
 
 
 def run_command(

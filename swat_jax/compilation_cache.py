@@ -1,7 +1,9 @@
-"""JAX's persistent compilation cache, on by default for everything that imports swat_jax.
+"""JAX's persistent compilation cache and the program cache, switched on by :func:`enable_caches`.
 
-MJX programs take tens of seconds to compile; the cache makes the second run of any command start
-in seconds. The cache lives in ``$SWAT_JAX_CACHE_DIR`` (default ``~/.cache/swat_jax/jax``, per user);
+MJX programs take tens of seconds to compile; the caches make the second run of any command start
+in seconds. Every command (``python -m swat_jax.train``, ``eval``, ...) calls :func:`enable_caches` first;
+importing swat_jax changes no setting of JAX, so a program that imports the library keeps its own, and
+calls ``swat_jax.enable_caches()`` to get the commands' caches. The cache lives in ``$SWAT_JAX_CACHE_DIR`` (default ``~/.cache/swat_jax/jax``, per user);
 ``SWAT_JAX_COMPILATION_CACHE=0`` turns it off. An explicit ``JAX_COMPILATION_CACHE_DIR`` wins.
 
 The cache is keyed by the lowered program, and JAX's in-memory caches of traced functions change how a
@@ -65,11 +67,19 @@ def cache_directory() -> Path | None:
     return Path(os.environ.get(DIRECTORY_VARIABLE, default)).expanduser()
 
 
-def enable_compilation_cache() -> Path | None:
-    """Point JAX at the cache directory (before or after jax is imported); returns it, or None if off."""
+_programs_enabled = False
+"""Whether :func:`compile_cached` keeps programs: set by :func:`enable_caches`."""
+
+
+def enable_caches() -> Path | None:
+    """Turn on JAX's persistent compilation cache and the program cache (:func:`compile_cached`) in the cache
+    directory, before or after jax is imported; returns the directory, or None when
+    ``$SWAT_JAX_COMPILATION_CACHE`` turns the caches off. The commands call it; a library user calls it once."""
+    global _programs_enabled
     directory = cache_directory()
     if directory is None:
         return None
+    _programs_enabled = True
     settings = {
         "jax_compilation_cache_dir": str(directory),
         "jax_persistent_cache_min_compile_time_secs": MIN_COMPILE_SECONDS,
@@ -115,7 +125,7 @@ def compile_cached(
     """
     import jax
 
-    directory = cache_directory()
+    directory = cache_directory() if _programs_enabled else None
     if directory is None or recipe is None or jax.process_count() > 1:
         return lower_built_afresh(build, *args).compile()
     limit = program_cache_limit()

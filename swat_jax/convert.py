@@ -29,11 +29,13 @@ from typing import Any
 import jax
 import numpy as np
 
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.networks import NetworkConfig
 from swat_jax.networks.original_weights import StateDict, actor_params, critic_params
 from swat_jax.runs.checkpoint import Checkpoints
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig
-from swat_jax.runs.experiment import Experiment, network_items
+from swat_jax.runs.experiment import Experiment
+from swat_jax.runs.trained import network_items
 from swat_jax.train import prepare_run_dir
 
 ALGORITHMS = {"swat": "swat", "transformer": "amorpheus", "smp": "smp"}
@@ -223,14 +225,9 @@ def convert(model: OriginalModel, config: TrainConfig, *, overwrite: bool = Fals
     run_dir = prepare_run_dir(config, resume=False, overwrite=overwrite)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
-        info = {
-            "env_steps": 0,
-            "iterations": 0,
-            "seconds": 0.0,
-            "converted_from": str(model.path),
-            "original_total_timesteps": model.total_timesteps,
-            **experiment.info(),
-        }
+        info = experiment.checkpoint_info(
+            0, 0, 0.0, converted_from=str(model.path), original_total_timesteps=model.total_timesteps
+        )
         checkpoints.save(state.replace(learner=learner), network_items(learner), info)
     finally:
         checkpoints.close()
@@ -279,6 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    enable_caches()
     args = build_parser().parse_args(argv)
     try:
         model = read_original(args.original, args.checkpoint)

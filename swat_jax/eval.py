@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 from collections.abc import Sequence
@@ -23,15 +22,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from swat_jax.cli import positive_int, run_command
-from swat_jax.compilation_cache import compile_cached
-from swat_jax.envs.multi_task import MultiTaskEnv
+from swat_jax.cli import positive_int, run_command, strict_json
+from swat_jax.compilation_cache import compile_cached, enable_caches
 from swat_jax.morphology import MorphologyError, get_set
-from swat_jax.networks import StructureMismatch, task_set
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError
-from swat_jax.runs.experiment import TrainedPolicy, load_policy, program_recipe
+from swat_jax.runs.experiment import make_env, program_recipe
 from swat_jax.runs.metrics import standard_error
+from swat_jax.runs.trained import TrainedPolicy, load_policy
 from swat_jax.td3.evaluation import make_evaluation
 
 SPLITS = ("train", "test", "all")
@@ -94,29 +92,9 @@ def evaluate(
         ValueError: a body does not fit the policy (observation width, traversal positions), or a seed
             index is out of range.
     """
-    try:
-        tasks = task_set(bodies, policy.config.network(), reference_inorder=policy.config.reference_inorder)
-    except StructureMismatch as error:
-        raise ValueError(
-            f"{error}: the policy of {policy.config.directory()} cannot take it "
-            f"({policy.config.structure_fix(error)})"
-        ) from error
+    tasks = policy.task_set(bodies)
     indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
-    env = MultiTaskEnv(
-        tasks.bodies,
-        episodes,
-        torso_relative_x=policy.config.torso_relative_x,
-        stale_kinematics=policy.config.stale_kinematics,
-        physics=policy.config.physics,
-        runs=len(indices),
-    )
-    features = int(policy.info["observation_features"])
-    if env.observation_features != features:
-        raise ValueError(
-            f"{', '.join(env.body_names)}: {env.observation_features} observation features per limb, the "
-            f"policy was trained on {features} (another family vocabulary); evaluate bodies of the run's "
-            "families"
-        )
+    env = make_env(policy.config, tasks.bodies, episodes, len(indices))
     params = jax.tree_util.tree_map(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )
@@ -249,6 +227,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 @dataclasses.dataclass(frozen=True)
+class EvalOptions:
+    """What to evaluate in a run, as the command line's options say it (``evaluate_run``'s argument)."""
+
+    split: str = "train"
+    """train: the bodies the run trained on; test: its set's held-out bodies (zero-shot); all: both."""
+    bodies: tuple[str, ...] = ()
+    """Benchmark names or MJCF paths to evaluate instead of a split."""
+    episodes: int = 100
+    """Episodes per body, per seed."""
+    seed: int = 0
+    """Seed of the reset noise."""
+    seed_index: int | None = None
+    """Only this seed of a multi-seed run (an index into its seeds); None: every seed."""
+    video: Path | None = None
+    """Also write ``video/<body>.mp4`` of each body's first episode."""
+
+
+@dataclasses.dataclass(frozen=True)
 class RunEvaluation:
     """One run directory's policy and its evaluation per body."""
 
@@ -260,25 +256,26 @@ class RunEvaluation:
         return self.policy.config.algo
 
 
-def evaluate_run(run_dir: Path, args: argparse.Namespace) -> RunEvaluation:
-    """Evaluate the newest checkpoint of ``run_dir`` as the parsed command line says."""
+def evaluate_run(run_dir: str | Path, options: EvalOptions = EvalOptions()) -> RunEvaluation:
+    """Evaluate the newest checkpoint of ``run_dir`` deterministically, as ``options`` say."""
+    run_dir = Path(run_dir)
     policy = load_policy(run_dir)
-    bodies = selected_bodies(policy, args.split, args.bodies)
+    bodies = selected_bodies(policy, options.split, options.bodies)
     print(f"{run_dir}: evaluating {', '.join(Path(body).stem for body in bodies)} ...", file=sys.stderr)
     results = evaluate(
         policy,
         bodies,
-        episodes=args.episodes,
-        seed=args.seed,
-        record=bool(args.video),
-        seed_indices=None if args.seed_index is None else [args.seed_index],
+        episodes=options.episodes,
+        seed=options.seed,
+        record=options.video is not None,
+        seed_indices=None if options.seed_index is None else [options.seed_index],
     )
-    if args.video:
+    if options.video is not None:
         from swat_jax.render import render_rollout
 
-        args.video.mkdir(parents=True, exist_ok=True)
+        options.video.mkdir(parents=True, exist_ok=True)
         for body, result in zip(bodies, results, strict=True):
-            path = render_rollout(body, result.qpos, args.video / f"{result.body}.mp4")
+            path = render_rollout(body, result.qpos, options.video / f"{result.body}.mp4")
             print(f"wrote {path}", file=sys.stderr)
     return RunEvaluation(run_dir, policy, results)
 
@@ -312,14 +309,14 @@ def markdown_table(runs: Sequence[RunEvaluation], episodes: int) -> str:
     return "\n".join(lines)
 
 
-def json_run(run: RunEvaluation, args: argparse.Namespace) -> dict[str, Any]:
+def json_run(run: RunEvaluation, options: EvalOptions) -> dict[str, Any]:
     """The ``--json`` object of one run."""
     return {
         "run_dir": str(run.run_dir),
         "algo": run.policy.config.algo,
-        "env_steps": run.policy.info["env_steps"],
-        "episodes": args.episodes,
-        "seed": args.seed,
+        "env_steps": run.policy.info.env_steps,
+        "episodes": options.episodes,
+        "seed": options.seed,
         "seeds": list(run.results[0].seeds),
         "bodies": json_report(run.results),
     }
@@ -329,14 +326,22 @@ def run(args: argparse.Namespace) -> str:
     """Evaluate (and render) per the parsed command line; returns the text to print."""
     if args.video and len(args.run_dirs) > 1:
         raise ValueError("--video takes one RUN_DIR; evaluate the runs one at a time to record them")
-    runs = [evaluate_run(run_dir, args) for run_dir in args.run_dirs]
+    options = EvalOptions(
+        split=args.split,
+        bodies=tuple(args.bodies),
+        episodes=args.episodes,
+        seed=args.seed,
+        seed_index=args.seed_index,
+        video=args.video,
+    )
+    runs = [evaluate_run(run_dir, options) for run_dir in args.run_dirs]
     if args.markdown:
         return markdown_table(runs, args.episodes)
     if args.json:
-        reports = [json_run(run, args) for run in runs]
-        return json.dumps(reports[0] if len(reports) == 1 else {"runs": reports}, indent=2)
+        reports = [json_run(run, options) for run in runs]
+        return strict_json(reports[0] if len(reports) == 1 else {"runs": reports}, indent=2)
     return "\n\n".join(
-        f"{run.run_dir} after {run.policy.info['env_steps']:,} environment steps ({run.policy.config.algo})\n"
+        f"{run.run_dir} after {run.policy.info.env_steps:,} environment steps ({run.policy.config.algo})\n"
         + format_table(run.results, args.episodes)
         for run in runs
     )
@@ -344,6 +349,7 @@ def run(args: argparse.Namespace) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
+    enable_caches()
     return run_command(
         build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
     )

@@ -31,14 +31,13 @@ from matplotlib.lines import Line2D
 from sklearn.manifold import TSNE
 
 from swat_jax.cli import run_command
-from swat_jax.envs.body import BodyEnv
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import Morphology, MorphologyError, StructureBatch, get_set, load
-from swat_jax.networks import StructureMismatch, task_set
 from swat_jax.networks.transformer import RelationalEmbedding, TraversalEmbedding
 from swat_jax.runs.checkpoint import CheckpointError
-from swat_jax.runs.config import ConfigError, TrainConfig, load_config
-from swat_jax.runs.experiment import CONFIG_FILE, TrainedPolicy, load_policy
+from swat_jax.runs.config import CONFIG_FILE, ConfigError, TrainConfig, load_config
 from swat_jax.runs.metrics import CSV_FILE, read_metrics, standard_error
+from swat_jax.runs.trained import TrainedPolicy, load_policy
 
 METRIC_PREFIXES = {"train": "", "eval": "eval/"}
 """Column prefix of each ``--metric``: the training episodes' returns (the paper's curves) or the
@@ -265,18 +264,6 @@ def embedding_params(policy: TrainedPolicy, seed_index: int, module: str) -> dic
     return {"params": policy.seed_params(seed_index)["params"]["policy"][module]}
 
 
-def checked_structure(policy: TrainedPolicy, run_dir: Path, bodies: Sequence[Morphology]) -> StructureBatch:
-    """The bodies' padded structures (their task set's); ValueError if one is larger than the positional tables."""
-    try:
-        return task_set(
-            bodies, policy.config.network(), reference_inorder=policy.config.reference_inorder
-        ).structure
-    except StructureMismatch as error:
-        raise ValueError(
-            f"{error}: the network of {run_dir} has no embedding for it ({policy.config.structure_fix(error)})"
-        ) from error
-
-
 def positional_embeddings(policy: TrainedPolicy, seed_index: int, structure: StructureBatch) -> np.ndarray:
     """[total limbs, width] each real limb's positional embedding (its traversal tables' rows
     concatenated), the bodies' limbs one after another."""
@@ -358,7 +345,7 @@ def plot_embeddings(run_dir: str | Path, output: str | Path, *, seed_index: int 
     require_embedding(policy.config, run_dir, "traversal_embedding")
     environment_set = get_set(policy.config.env)
     bodies = [load(body) for body in environment_set.split("all")]
-    embeddings = positional_embeddings(policy, seed_index, checked_structure(policy, run_dir, bodies))
+    embeddings = positional_embeddings(policy, seed_index, policy.task_set(bodies).structure)
     title = (
         f"{policy.config.algo} on {environment_set.name}, seed {policy.seeds[seed_index]}: "
         f"t-SNE of the positional embeddings"
@@ -374,19 +361,6 @@ def relation_bias(policy: TrainedPolicy, seed_index: int, structure: StructureBa
     module = RelationalEmbedding(policy.config.network())
     variables = embedding_params(policy, seed_index, "relational_embedding")
     return np.asarray(module.apply(variables, structure.relations[0]))
-
-
-def checked_body(policy: TrainedPolicy, run_dir: Path, body: Morphology) -> StructureBatch:
-    """The structure of ``body`` alone; ValueError if the policy cannot take it: another observation width
-    (family vocabulary), or more limbs than its positional tables."""
-    features = BodyEnv(body, torso_relative_x=policy.config.torso_relative_x).observation_features
-    expected = int(policy.info["observation_features"])
-    if features != expected:
-        raise ValueError(
-            f"{body.name}: {features} observation features per limb, the policy of {run_dir} was trained on "
-            f"{expected} (another family vocabulary); plot a body of the run's families"
-        )
-    return checked_structure(policy, run_dir, [body])
 
 
 def relations_figure(bias: np.ndarray, limb_names: Sequence[str], title: str) -> Figure:
@@ -423,7 +397,7 @@ def plot_relations(
     policy = load_policy(run_dir)
     require_embedding(policy.config, run_dir, "relational_embedding")
     morphology = load(body)
-    bias = relation_bias(policy, seed_index, checked_body(policy, run_dir, morphology))
+    bias = relation_bias(policy, seed_index, policy.task_set([morphology]).structure)
     title = (
         f"{policy.config.algo}, seed {policy.seeds[seed_index]}: relational bias g(R) on {morphology.name}"
     )
@@ -517,6 +491,7 @@ def run(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
+    enable_caches()
     return run_command(
         build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
     )

@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from swat_jax.cli import ERROR_STATUS, positive_int
+from swat_jax.compilation_cache import enable_caches
 from swat_jax.envs.body import BodyEnv, EnvState
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.picture import (
@@ -311,6 +312,7 @@ def run(args: argparse.Namespace) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad body or option, 1 if rendering fails)."""
+    enable_caches()
     args = build_parser().parse_args(argv)
     try:
         run(args)

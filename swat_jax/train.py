@@ -34,12 +34,13 @@ import tyro
 from tqdm import tqdm
 
 from swat_jax.cli import ERROR_STATUS
-from swat_jax.compilation_cache import CacheSettingError, program_cache_limit
+from swat_jax.compilation_cache import CacheSettingError, enable_caches, program_cache_limit
 from swat_jax.networks import param_count
-from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
-from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
-from swat_jax.runs.experiment import CONFIG_FILE, Experiment, network_items
+from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
+from swat_jax.runs.config import CONFIG_FILE, PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.metrics import MetricsWindow, MetricsWriter, evaluation_columns
+from swat_jax.runs.trained import network_items
 from swat_jax.td3.evaluation import Episodes
 from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
@@ -209,16 +210,14 @@ def train(
     try:
         if resume and checkpoints.latest_step() is not None:
             state, info = experiment.restore_state(checkpoints)
-            print(f"resumed from {checkpoints.directory / str(info['env_steps'])}")
+            print(f"resumed from {checkpoints.directory / str(info.env_steps)}")
         else:
             if resume:
                 print(f"no checkpoint in {checkpoints.directory} yet: starting the run from its saved config")
-            state, info = experiment.init_state(), {"env_steps": 0, "iterations": 0, "seconds": 0.0}
+            state, info = experiment.init_state(), experiment.checkpoint_info(0, 0, 0.0)
         # Several hosts: every process trains and checkpoints its shards; process 0 writes the metrics.
         primary = jax.process_index() == 0
-        metrics = (
-            MetricsWriter(run_dir, resumed_at=info["env_steps"] if resume else None) if primary else None
-        )
+        metrics = MetricsWriter(run_dir, resumed_at=info.env_steps if resume else None) if primary else None
         try:
             return _loop(experiment, state, info, checkpoints, metrics, progress and primary, after_iteration)
         finally:
@@ -231,7 +230,7 @@ def train(
 def _loop(
     experiment: Experiment,
     state: TrainState,
-    info: dict[str, Any],
+    info: CheckpointInfo,
     checkpoints: Checkpoints,
     metrics: MetricsWriter | None,
     progress: bool,
@@ -242,9 +241,9 @@ def _loop(
     total = max(1, math.ceil(config.steps / per_iteration))
     log_every = max(1, round(config.log_interval / per_iteration))
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
-    done = int(info["iterations"])
-    seconds = float(info["seconds"])
-    window = MetricsWindow(config.seeds, env.num_bodies, info.get("metrics_window"))
+    done = info.iterations
+    seconds = info.seconds
+    window = MetricsWindow(config.seeds, env.num_bodies, info.metrics_window)
 
     start = time.perf_counter()
     print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
@@ -256,13 +255,9 @@ def _loop(
 
     def save() -> None:
         nonlocal saved
-        info = {
-            "env_steps": done * per_iteration,
-            "iterations": done,
-            "seconds": seconds,
-            "metrics_window": window.to_json(),
-            **experiment.info(),
-        }
+        info = experiment.checkpoint_info(
+            done * per_iteration, done, seconds, metrics_window=window.to_json()
+        )
         checkpoints.save(state, network_items(state.learner), info)
         saved = done
 
@@ -416,6 +411,7 @@ def parse_command(argv: list[str]) -> tuple[TrainCommand, TrainCommand]:
 
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and train; returns the exit status (2 for a bad option or run directory)."""
+    enable_caches()
     command, defaults = parse_command(sys.argv[1:] if argv is None else argv)
     try:
         command.start_distributed()

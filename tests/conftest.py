@@ -30,6 +30,11 @@ XLA_DEFAULTS = {
 """``jax.jit(..., compiler_options=XLA_DEFAULTS)`` undoes TEST_XLA_FLAGS for one program: for the tests whose
 programs run for seconds (thousands of updates), which run 3x faster compiled with XLA's defaults."""
 
+from swat_jax import enable_caches  # noqa: E402 (after XLA_FLAGS: importing swat_jax may import jax)
+
+enable_caches()
+"""The tests compile as the commands do: with the persistent compilation cache and the program cache."""
+
 
 WORKER_GROUPS = {
     **dict.fromkeys(

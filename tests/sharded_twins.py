@@ -20,10 +20,11 @@ import jax
 import numpy as np
 from conftest import tiny_train_config
 
-from swat_jax import export
+from swat_jax import export, serving
 from swat_jax.eval import evaluate
 from swat_jax.runs.checkpoint import Checkpoints
-from swat_jax.runs.experiment import Experiment, load_policy
+from swat_jax.runs.experiment import Experiment
+from swat_jax.runs.trained import load_policy
 from swat_jax.train import train
 
 
@@ -77,9 +78,9 @@ def main(folder: Path, out: Path) -> None:
     after_resume = largest_differences(*resumed)
 
     policy = load_policy(sharded.directory())
-    evaluation = evaluate(policy, policy.info["bodies"], episodes=2)
+    evaluation = evaluate(policy, policy.info.bodies, episodes=2)
     export.export_policy(sharded.directory(), out / "policy.npz")
-    loaded = export.load(out / "policy.npz")
+    loaded = serving.load(out / "policy.npz")
     observation = np.zeros((3, loaded.max_limbs, loaded.observation_features), np.float32)
     actions = np.asarray(loaded(observation, loaded.bodies[0]))
     print(

@@ -1,5 +1,5 @@
-"""The persistent compilation cache is on by default, per user, can be moved and turned off; the program
-cache loads a run's compiled programs without tracing them, in this process or another, and only when
+"""The persistent compilation cache is off until ``swat_jax.enable_caches()`` (which every command calls),
+then per user, can be moved and turned off; the program cache loads a run's compiled programs without tracing them, in this process or another, and only when
 nothing they are traced from has changed."""
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from swat_jax.td3.learner import TD3Config
 PROBE = """
 import {first}, {second}
 import jax.numpy as jnp
+print(jax.config.jax_compilation_cache_dir, end=" ")
+swat_jax.enable_caches()
 print(jax.config.jax_compilation_cache_dir)
 jax.jit(lambda x: jnp.sin(x) * 2)(jnp.ones(3)).block_until_ready()
 """
@@ -48,18 +50,21 @@ def run_probe(tmp_path, first="jax", second="swat_jax", **env) -> str:
 
 
 @pytest.mark.parametrize("imports", [("jax", "swat_jax"), ("swat_jax", "jax")])
-def test_cache_is_on_by_default_and_filled(tmp_path, imports):
+def test_import_leaves_the_cache_off_and_enable_caches_fills_it(tmp_path, imports):
     directory = tmp_path / "xdg" / "swat_jax" / "jax"
-    assert run_probe(tmp_path, *imports) == str(directory)
+    assert run_probe(tmp_path, *imports) == f"None {directory}"
     assert any(directory.iterdir()), "the jitted probe left no cache entry"
 
 
 def test_cache_directory_can_be_moved(tmp_path):
-    assert run_probe(tmp_path, SWAT_JAX_CACHE_DIR=str(tmp_path / "elsewhere")) == str(tmp_path / "elsewhere")
+    assert (
+        run_probe(tmp_path, SWAT_JAX_CACHE_DIR=str(tmp_path / "elsewhere"))
+        == f"None {tmp_path / 'elsewhere'}"
+    )
 
 
 def test_cache_can_be_turned_off(tmp_path):
-    assert run_probe(tmp_path, SWAT_JAX_COMPILATION_CACHE="0") == "None"
+    assert run_probe(tmp_path, SWAT_JAX_COMPILATION_CACHE="0") == "None None"
     assert not (tmp_path / "xdg" / "swat_jax").exists()
 
 
@@ -135,6 +140,15 @@ def test_programs_that_call_into_this_process_are_not_saved(program_cache):
 
 def test_the_program_cache_is_off_with_the_compilation_cache(program_cache, monkeypatch):
     monkeypatch.setenv("SWAT_JAX_COMPILATION_CACHE", "0")
+    probe, x = Probe(), jnp.ones((2, 2))
+    compile_cached("probe", probe.build, (x,), ("recipe",))
+    compile_cached("probe", probe.build, (x,), ("recipe",))
+    assert probe.traces == 2
+    assert not program_cache.exists()
+
+
+def test_the_program_cache_keeps_nothing_before_enable_caches(program_cache, monkeypatch):
+    monkeypatch.setattr(compilation_cache, "_programs_enabled", False)
     probe, x = Probe(), jnp.ones((2, 2))
     compile_cached("probe", probe.build, (x,), ("recipe",))
     compile_cached("probe", probe.build, (x,), ("recipe",))

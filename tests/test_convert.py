@@ -27,7 +27,7 @@ from swat_jax.convert import (
     train_config,
 )
 from swat_jax.networks import task_set
-from swat_jax.runs.experiment import load_policy
+from swat_jax.runs.trained import load_policy
 
 DATA = Path(__file__).parent / "data" / "original"
 MODELS = np.load(DATA / "models.npz")

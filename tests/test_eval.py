@@ -9,9 +9,10 @@ import shutil
 import numpy as np
 import pytest
 
-from swat_jax.eval import evaluate, main
+from swat_jax.cli import strict_json
+from swat_jax.eval import EvalOptions, evaluate, evaluate_run, main
 from swat_jax.runs.config import load_config
-from swat_jax.runs.experiment import load_policy
+from swat_jax.runs.trained import load_policy
 
 
 def test_evaluation_is_deterministic_and_episodes_differ_by_their_resets(trained_run):
@@ -45,6 +46,35 @@ def test_json_reports_every_body_and_zero_shot_bodies_by_name(trained_run, capsy
             assert seed["length_std"] == pytest.approx(np.std(seed["lengths"]), abs=1e-4)
         seed_means = [seed["return_mean"] for seed in body["per_seed"].values()]
         assert body["return_mean"] == pytest.approx(np.mean(seed_means), rel=1e-5)
+
+
+def test_a_run_evaluates_from_python_with_typed_options(trained_run):
+    run = evaluate_run(trained_run, EvalOptions(bodies=("hopper_3",), episodes=2, seed=1, seed_index=1))
+    [expected] = evaluate(load_policy(trained_run), ["hopper_3"], episodes=2, seed=1, seed_indices=[1])
+    assert run.run_dir == trained_run and run.results[0].seeds == (1,)
+    np.testing.assert_array_equal(run.results[0].returns, expected.returns)
+
+
+def strict_loads(text: str) -> object:
+    """Parse as a strict JSON reader (jq, JavaScript) does: NaN and Infinity are not JSON."""
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not standard JSON: {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_json_of_one_seed_is_standard_json_with_null_spread(trained_run, capsys):
+    args = [str(trained_run), "--episodes", "2", "--bodies", "hopper_3", "--seed-index", "0", "--json"]
+    assert main(args) == 0
+    body = strict_loads(capsys.readouterr().out)["bodies"]["hopper_3"]
+    assert body["return_se"] is None, "one seed has no standard error"
+    assert body["return_mean"] == pytest.approx(body["per_seed"]["0"]["return_mean"])
+
+
+def test_strict_json_writes_null_for_undefined_numbers():
+    text = strict_json({"se": float("nan"), "up": [np.float32(np.inf), np.float64(1.5)], "n": np.int64(3)})
+    assert strict_loads(text) == {"se": None, "up": [None, 1.5], "n": 3}
 
 
 def test_table_and_video_of_the_train_split(trained_run, tmp_path, capsys):

@@ -1,5 +1,5 @@
-"""swat_jax.export: the exported file acts as the trained policy, for any batch size and padding, without
-the training code; the command line and its errors."""
+"""swat_jax.export writes and swat_jax.serving reads: the exported file acts as the trained policy, for any
+batch size and padding, without the training code; the command line and its errors."""
 
 import contextlib
 import dataclasses
@@ -15,10 +15,10 @@ import jax
 import numpy as np
 import pytest
 
-from swat_jax import export
+from swat_jax import export, serving
 from swat_jax.morphology import StructureBatch, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
-from swat_jax.runs.experiment import load_policy
+from swat_jax.runs.trained import load_policy
 
 FEATURES = 19
 """Observation values per limb of the hopper family."""
@@ -104,7 +104,7 @@ def test_command_line_writes_the_file(export_command):
     )
     assert printed.rstrip().endswith("bodies (1): hopper_3")
     metadata = json.loads(str(np.load(exported)["metadata"]))
-    assert metadata["format"] == export.FORMAT
+    assert metadata["format"] == serving.FORMAT
     assert metadata["algo"] == "amorpheus"
     assert metadata["max_limbs"] == 3
     assert metadata["observation_features"] == FEATURES
@@ -115,7 +115,7 @@ def test_command_line_writes_the_file(export_command):
 
 
 def test_properties_and_stored_structures(exported, hopper_folder):
-    policy = export.load(exported)
+    policy = serving.load(exported)
     assert (policy.max_limbs, policy.observation_features, policy.bodies) == (3, FEATURES, (BODY,))
     expected = body_structure(hopper_folder, 3)
     for name, array in policy.structure(BODY).items():
@@ -123,7 +123,7 @@ def test_properties_and_stored_structures(exported, hopper_folder):
 
 
 def test_matches_the_trained_policy_at_two_batch_sizes(exported, trained, hopper_folder):
-    policy = export.load(exported)
+    policy = serving.load(exported)
     structure = body_structure(hopper_folder, 3)
     for batch, by in ((1, BODY), (64, structure)):
         observation = observations(batch, 3, seed=batch)
@@ -140,7 +140,7 @@ def test_padded_limbs_do_not_change_actions_of_the_chosen_seed(
     assert export.main([str(trained_run), "-o", str(path), *flags]) == 0
     printed = capsys.readouterr().out
     assert "(seed 1)" in printed and "max limbs 5" in printed
-    policy = export.load(path)
+    policy = serving.load(path)
     observation = observations(8, 5, real_limbs=5)  # junk, not zeros, on the padded limbs
     actions = np.asarray(policy(observation, BODY))
     structure = body_structure(hopper_folder, 3)
@@ -159,7 +159,7 @@ def test_every_architecture_exports_with_a_symbolic_batch(algo, tmp_path):
     if algo == "smp":
         network = network_config(algo, message_width=4, up_hidden=(8,), down_hidden=(8,))
     actor, params, structure = write_random_policy(tmp_path / "random.npz", network, 4, algo=algo)
-    policy = export.load(tmp_path / "random.npz")
+    policy = serving.load(tmp_path / "random.npz")
     assert policy.metadata["jax_version"] == jax.__version__
     for batch in (1, 5):
         observation = observations(batch, 4, seed=batch)
@@ -172,13 +172,13 @@ def test_a_program_this_jax_cannot_read_is_refused_at_load(tmp_path):
     older one. The flatbuffer around it still reads, so only an eager load finds out."""
     valid = tmp_path / "valid.npz"
     write_random_policy(valid, TINY_SWAT, 3)
-    exported = jax.export.deserialize(bytearray(np.load(valid)[export.PROGRAM_KEY].tobytes()))
+    exported = jax.export.deserialize(bytearray(np.load(valid)[serving.PROGRAM_KEY].tobytes()))
     forged = dataclasses.replace(exported, mlir_module_serialized=b"ML\xefR\x00 not StableHLO")
     path = tmp_path / "forged.npz"
     structures = pad_structures([load(BODY)], 3)
     export.write_policy(path, forged.serialize(), structures, [BODY], FEATURES, jax_version="0.99.0")
-    with pytest.raises(export.ExportError) as error:
-        export.load(path)
+    with pytest.raises(serving.ExportError) as error:
+        serving.load(path)
     message = str(error.value)
     assert message.startswith(
         f"{path}: its program was written by jax 0.99.0 and cannot be run by this jax {jax.__version__} ("
@@ -190,14 +190,14 @@ def test_a_program_this_jax_cannot_read_is_refused_at_load(tmp_path):
 
 def test_a_policy_written_by_jax_0_11_loads_only_where_jax_reads_it():
     """On jax 0.10 the file fails at load (it used to fail at its first call); on 0.11.2 it runs."""
-    assert json.loads(str(np.load(NEWER_JAX_POLICY)[export.METADATA_KEY]))["jax_version"] == NEWER_JAX
+    assert json.loads(str(np.load(NEWER_JAX_POLICY)[serving.METADATA_KEY]))["jax_version"] == NEWER_JAX
     if version(jax.__version__) < version(NEWER_JAX):
         with pytest.raises(
-            export.ExportError, match=f"written by jax {NEWER_JAX} and cannot be run by this jax"
+            serving.ExportError, match=f"written by jax {NEWER_JAX} and cannot be run by this jax"
         ):
-            export.load(NEWER_JAX_POLICY)
+            serving.load(NEWER_JAX_POLICY)
         return
-    actions = export.load(NEWER_JAX_POLICY)(observations(2, 3), BODY)
+    actions = serving.load(NEWER_JAX_POLICY)(observations(2, 3), BODY)
     assert actions.shape == (2, 3) and np.all(np.abs(actions) <= 1.0)
 
 
@@ -212,9 +212,9 @@ def test_runs_without_the_training_code(exported, trained, hopper_folder, tmp_pa
         blocked = {TRAINING_CODE!r}
         for name in blocked:
             sys.modules[name] = None
-        import swat_jax.export
+        import swat_jax.serving
 
-        policy = swat_jax.export.load({str(exported)!r})
+        policy = swat_jax.serving.load({str(exported)!r})
         actions = policy(np.load({str(tmp_path / "observation.npy")!r}), {BODY!r})
         np.testing.assert_allclose(actions, np.load({str(tmp_path / "expected.npy")!r}), atol=1e-5)
         loaded = [name for name in sys.modules if name.startswith(blocked) and sys.modules[name] is not None]
@@ -263,13 +263,13 @@ def test_files_that_are_not_exported_policies(tmp_path):
         (wrong_format, "its metadata format is not 'swat_jax.exported_policy'"),
     ]
     for path, message in cases:
-        with pytest.raises(export.ExportError, match=str(path)) as error:
-            export.load(path)
+        with pytest.raises(serving.ExportError, match=str(path)) as error:
+            serving.load(path)
         assert message in str(error.value)
 
 
 def test_wrong_inputs_name_the_expected_shape(exported, hopper_folder):
-    policy = export.load(exported)
+    policy = serving.load(exported)
     with pytest.raises(ValueError, match=r"observation must be \[batch, 3, 19\].*got shape \(2, 4, 19\)"):
         policy(np.zeros((2, 4, FEATURES)), BODY)
     with pytest.raises(ValueError, match=r"observation must be \[batch, 3, 19\].*got shape \(2, 3, 18\)"):

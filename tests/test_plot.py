@@ -21,8 +21,8 @@ from swat_jax.plot import (
     require_embedding,
 )
 from swat_jax.runs.config import TrainConfig, load_config
-from swat_jax.runs.experiment import load_policy
 from swat_jax.runs.metrics import read_metrics
+from swat_jax.runs.trained import load_policy
 
 HOPPERS = ("hopper_3", "hopper_4", "hopper_5")
 WALKERS = ("walker_2_main", "walker_4_main")

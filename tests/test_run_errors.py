@@ -10,15 +10,16 @@ import pytest
 from conftest import tiny_train_config
 
 from swat_jax.eval import main as eval_main
-from swat_jax.runs.checkpoint import ERROR_LOG, CheckpointError, Checkpoints
-from swat_jax.runs.config import ConfigError
-from swat_jax.runs.experiment import CONFIG_FILE, Experiment
+from swat_jax.runs.checkpoint import ERROR_LOG, CheckpointError, CheckpointInfo, Checkpoints
+from swat_jax.runs.config import CONFIG_FILE, ConfigError
+from swat_jax.runs.experiment import Experiment
 
 
 def test_an_unreadable_checkpoint_fits_on_a_screen_and_logs_the_detail(tmp_path):
     state = {"weights": np.arange(4096, dtype=np.float32).reshape(64, 64)}
     checkpoints = Checkpoints(tmp_path)
-    checkpoints.save(state, {"actor": state}, {"env_steps": 100})
+    info = CheckpointInfo(100, 1, 1.0, seeds=(0,), bodies=("hopper_3",), max_limbs=4, observation_features=19)
+    checkpoints.save(state, {"actor": state}, info)
     for chunk in (tmp_path / "checkpoints" / "100" / "actor").rglob("d/*"):
         chunk.write_bytes(b"not a chunk")
     with pytest.raises(CheckpointError) as raised:
@@ -29,6 +30,26 @@ def test_an_unreadable_checkpoint_fits_on_a_screen_and_logs_the_detail(tmp_path)
     assert f"{tmp_path / 'checkpoints' / '100'} is unreadable" in message
     assert "delete that folder" in message and str(tmp_path / ERROR_LOG) in message
     assert "Traceback" in (tmp_path / ERROR_LOG).read_text()
+
+
+def test_checkpoint_info_reads_back_what_was_written_and_names_a_missing_field(tmp_path):
+    info = CheckpointInfo(
+        600,
+        3,
+        12.5,
+        seeds=(0, 1),
+        bodies=("hopper_3",),
+        max_limbs=4,
+        observation_features=19,
+        metrics_window={"rows": 1},
+    )
+    stored = info.to_json()
+    assert stored["seeds"] == [0, 1] and "converted_from" not in stored
+    assert CheckpointInfo.from_json(stored, tmp_path) == info
+    with pytest.raises(CheckpointError, match="before runs had a seed axis"):
+        CheckpointInfo.from_json({"env_steps": 600}, tmp_path)
+    with pytest.raises(CheckpointError, match="lacks observation_features"):
+        CheckpointInfo.from_json({k: v for k, v in stored.items() if k != "observation_features"}, tmp_path)
 
 
 def test_eval_of_a_run_without_checkpoints_says_so_in_its_own_words(trained_run, tmp_path, capsys):

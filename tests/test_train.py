@@ -25,8 +25,9 @@ from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
 from swat_jax.runs.config import FIXES, PRESETS, Algorithm, ConfigError, TrainConfig, load_config
-from swat_jax.runs.experiment import Experiment, load_policy
+from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.metrics import read_metrics
+from swat_jax.runs.trained import load_policy
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.train import RunExistsError, TrainCommand, main, resolve, train
 
@@ -78,7 +79,7 @@ def test_run_directory_holds_config_metrics_tensorboard_and_checkpoints(trained_
     evaluated = [row["env_steps"] for row in rows if np.isfinite(row["eval/return/hopper_3"])]
     assert evaluated == [400, 400, 600, 600], "evaluations every --eval-interval steps and at the end"
     policy = load_policy(trained_run)
-    assert policy.info["env_steps"] == 600 and policy.info["bodies"] == ["hopper_3"]
+    assert policy.info.env_steps == 600 and policy.info.bodies == ("hopper_3",)
     assert policy.seeds == (0, 1)
 
 
@@ -109,7 +110,7 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, h
 
     resumed, resumed_info = final_state(tmp_path / "resumed")
     uninterrupted, info = final_state(trained_run)
-    assert resumed_info["iterations"] == info["iterations"] == 6
+    assert resumed_info.iterations == info.iterations == 6
     a, b = flatten(resumed), flatten(uninterrupted)
     assert a.keys() == b.keys()
     differing = [key for key in a if not np.array_equal(np.asarray(a[key]), np.asarray(b[key]))]

@@ -19,8 +19,8 @@ from swat_jax.envs import MultiTaskEnv
 from swat_jax.envs.physics import Simulator
 from swat_jax.eval import evaluate
 from swat_jax.morphology.mjcf import compile_model, load
-from swat_jax.runs.experiment import load_policy
 from swat_jax.runs.metrics import read_metrics
+from swat_jax.runs.trained import load_policy
 from swat_jax.train import train
 
 STEPS = 10

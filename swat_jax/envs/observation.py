@@ -28,6 +28,12 @@ KINEMATIC_FEATURES = 12
 """Position, linear velocity, angular velocity and orientation: the slots before the limb type."""
 
 
+def features_per_limb(num_limb_types: int) -> int:
+    """F, the values of one limb's observation for a family of ``num_limb_types`` limb types: the kinematic
+    slots, the limb type one-hot, and the scaled joint angle and range (3)."""
+    return KINEMATIC_FEATURES + num_limb_types + 3
+
+
 class ObservationLayout(NamedTuple):
     """What a body's observation needs besides the simulator state (host-side constants).
 
@@ -45,7 +51,7 @@ class ObservationLayout(NamedTuple):
 
     @property
     def features(self) -> int:
-        return KINEMATIC_FEATURES + self.limb_type_one_hot.shape[1] + 3
+        return features_per_limb(self.limb_type_one_hot.shape[1])
 
 
 def observation_layout(morphology: Morphology, model: mujoco.MjModel) -> ObservationLayout:

@@ -14,7 +14,6 @@ A body is a benchmark name (see `list`) or the path of an MJCF file. Errors exit
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import textwrap
 from collections.abc import Sequence
@@ -23,6 +22,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from swat_jax.cli import strict_json
 from swat_jax.morphology.encodings import (
     RELATION_NAMES,
     TRAVERSAL_NAMES,
@@ -215,7 +215,7 @@ def run(args: argparse.Namespace) -> None:
     if args.command == "list":
         print(list_text())
     elif args.command == "show" and args.json:
-        print(json.dumps(show_json(load(args.body), reference_inorder=args.reference_inorder)))
+        print(strict_json(show_json(load(args.body), reference_inorder=args.reference_inorder)))
     elif args.command == "show":
         print(show_text(load(args.body), reference_inorder=args.reference_inorder))
     else:

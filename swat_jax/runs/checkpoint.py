@@ -10,8 +10,8 @@ A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with 
 - ``actor``: the actor parameters, so a policy loads without reading the replay buffers;
 - ``critic``: the critic parameters and both target networks, so another run can start from this
   one's networks (``--init-from``) without reading the replay buffers;
-- ``info``: environment steps, iterations and seconds trained, and what a policy needs to be rebuilt
-  (bodies, padded limb count, observation features).
+- ``info``: a :class:`CheckpointInfo`: environment steps, iterations and seconds trained, and what a
+  policy needs to be rebuilt (seeds, bodies, padded limb count, observation features).
 
 Orbax writes each step to a temporary folder and renames it when complete, so an interrupted write
 leaves the previous checkpoint intact.
@@ -19,6 +19,7 @@ leaves the previous checkpoint intact.
 
 from __future__ import annotations
 
+import dataclasses
 import traceback
 from pathlib import Path
 from typing import Any
@@ -40,6 +41,64 @@ TENSORSTORE_DETAIL = "See full TensorStore details"
 
 class CheckpointError(RuntimeError):
     """A checkpoint that is missing, unreadable or does not match the run; the message says what to do."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CheckpointInfo:
+    """What a checkpoint says about itself: its ``info`` item, stored as JSON."""
+
+    env_steps: int
+    """Environment steps trained, summed over bodies, of each seed (the checkpoint's folder name)."""
+    iterations: int
+    seconds: float
+    """Wall clock spent training, over every start of the run."""
+    seeds: tuple[int, ...]
+    """The seed of each slice of the state's leading seed axis."""
+    bodies: tuple[str, ...]
+    """The bodies trained on, in task order."""
+    max_limbs: int
+    observation_features: int
+    """Values per limb of the observation the actor takes."""
+    metrics_window: dict[str, Any] | None = None
+    """The metrics accumulated since the last metrics row (:class:`~swat_jax.runs.metrics.MetricsWindow`)."""
+    converted_from: str | None = None
+    """For a run converted from the original code: the file its networks came from."""
+    original_total_timesteps: int | None = None
+    """For a converted run: the steps the original trainer had counted."""
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object stored as the ``info`` item (fields that are None are left out)."""
+        return {
+            field.name: list(value) if isinstance(value, tuple) else value
+            for field in dataclasses.fields(self)
+            if (value := getattr(self, field.name)) is not None
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: Path) -> CheckpointInfo:
+        """Read a stored ``info`` item (CheckpointError naming ``where`` if it lacks a field it needs)."""
+        if "seeds" not in data:
+            raise CheckpointError(
+                f"{where} was written before runs had a seed axis (swat_jax 0.1.0 before multi-seed training); "
+                "train the run again"
+            )
+        fields = {field.name for field in dataclasses.fields(cls)}
+        required = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
+        if missing := sorted(required - set(data)):
+            raise CheckpointError(f"{where}: its info lacks {', '.join(missing)}; train the run again")
+        values = {key: value for key, value in data.items() if key in fields}
+        return cls(
+            **{
+                **values,
+                "seeds": tuple(int(seed) for seed in data["seeds"]),
+                "bodies": tuple(data["bodies"]),
+                "env_steps": int(data["env_steps"]),
+                "iterations": int(data["iterations"]),
+                "seconds": float(data["seconds"]),
+                "max_limbs": int(data["max_limbs"]),
+                "observation_features": int(data["observation_features"]),
+            }
+        )
 
 
 def flatten(tree: Any) -> dict[str, np.ndarray | jax.Array]:
@@ -80,26 +139,26 @@ class Checkpoints:
         """Environment steps of the newest complete checkpoint, or None."""
         return self.manager.latest_step()
 
-    def save(self, state: Any, networks: dict[str, Any], info: dict[str, Any]) -> None:
-        """Write a checkpoint named by ``info["env_steps"]`` and wait until it is on disk.
+    def save(self, state: Any, networks: dict[str, Any], info: CheckpointInfo) -> None:
+        """Write a checkpoint named by ``info.env_steps`` and wait until it is on disk.
 
         Args:
             networks: the ``actor`` and ``critic`` items (pytrees of arrays), read alone by
                 :meth:`restore_item`.
         """
         self.manager.save(
-            int(info["env_steps"]),
+            info.env_steps,
             args=ocp.args.Composite(
                 state=ocp.args.StandardSave(flatten(state)),
                 manifest=ocp.args.JsonSave(manifest(state)),
                 **{name: ocp.args.StandardSave(tree) for name, tree in networks.items()},
-                info=ocp.args.JsonSave(info),
+                info=ocp.args.JsonSave(info.to_json()),
             ),
             force=True,
         )
         self.manager.wait_until_finished()
 
-    def restore(self, template: Any, shardings: Any) -> tuple[Any, dict[str, Any]]:
+    def restore(self, template: Any, shardings: Any) -> tuple[Any, CheckpointInfo]:
         """The newest checkpoint's state (shaped like ``template``, placed as ``shardings``, a matching
         pytree of shardings, whatever devices wrote it) and info."""
         step = self._latest()
@@ -118,11 +177,16 @@ class Checkpoints:
             for key, leaf in flatten(template).items()
         }
         restored = self._read(step, state=ocp.args.StandardRestore(abstract), info=ocp.args.JsonRestore())
-        return unflatten(template, restored["state"]), dict(restored["info"])
+        return unflatten(template, restored["state"]), CheckpointInfo.from_json(
+            restored["info"], self._path(step)
+        )
 
-    def info(self) -> dict[str, Any]:
+    def info(self) -> CheckpointInfo:
         """The newest checkpoint's info."""
-        return dict(self._read(self._latest(), info=ocp.args.JsonRestore())["info"])
+        step = self._latest()
+        return CheckpointInfo.from_json(
+            self._read(step, info=ocp.args.JsonRestore())["info"], self._path(step)
+        )
 
     def restore_item(self, name: str, template: Any) -> Any:
         """The newest checkpoint's ``name`` item (``actor`` or ``critic``), shaped like ``template``, on this

@@ -40,6 +40,10 @@ Preset = Literal["paper", "intended", "fast"]
 Split = Literal["train", "test", "all"]
 
 
+CONFIG_FILE = "config.json"
+"""The resolved config in every run directory."""
+
+
 class ConfigError(ValueError):
     """A configuration that cannot run, or a config file that cannot be read; the message says the fix."""
 

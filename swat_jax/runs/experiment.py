@@ -1,5 +1,5 @@
-"""What a :class:`TrainConfig` builds (environments, networks, learner, the jitted iteration), and the
-trained policy read back from a run directory (for ``swat_jax.eval`` and ``swat_jax.export``)."""
+"""What a :class:`TrainConfig` builds: the task set, environments, networks, learner, device mesh and the
+jitted programs of a run (the trained policy read back from a run directory is :mod:`swat_jax.runs.trained`)."""
 
 from __future__ import annotations
 
@@ -14,17 +14,17 @@ import numpy as np
 
 from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
 from swat_jax.envs.multi_task import MultiTaskEnv
-from swat_jax.morphology import StructureBatch, limb_buckets
+from swat_jax.morphology import Morphology, limb_buckets
 from swat_jax.networks import (
-    LimbNetwork,
     Params,
     StructureMismatch,
     TaskSet,
     make_actor_critic,
     task_set,
 )
-from swat_jax.runs.checkpoint import CheckpointError, Checkpoints
-from swat_jax.runs.config import ConfigError, TrainConfig, load_config
+from swat_jax.runs.checkpoint import CheckpointInfo, Checkpoints
+from swat_jax.runs.config import ConfigError, TrainConfig
+from swat_jax.runs.trained import check_transfer, network_items, restore_networks
 from swat_jax.td3.evaluation import Episodes, make_evaluation
 from swat_jax.td3.iteration import (
     TrainState,
@@ -34,8 +34,6 @@ from swat_jax.td3.iteration import (
 )
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.sharding import Placement, placement
-
-CONFIG_FILE = "config.json"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,17 +59,9 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
-        env = MultiTaskEnv(
-            tasks.bodies,
-            config.copies,
-            torso_relative_x=config.torso_relative_x,
-            stale_kinematics=config.stale_kinematics,
-            physics=config.physics,
-            runs=config.seeds,
-            lock_step=config.iteration.rounds,
-        )
+        env = make_env(config, tasks.bodies, config.copies, config.seeds, lock_step=config.iteration.rounds)
         if config.init_from:
-            _check_transfer(config, env.observation_features)
+            check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features)
         devices = jax.devices() if devices is None else devices
         layout = placement(config.seeds, env.num_bodies, config.copies, devices)
@@ -108,7 +98,7 @@ class Experiment:
         """``learner`` with the networks of seed ``init_seed_index`` of run ``init_from`` in every seed."""
         one_seed = network_items(jax.eval_shape(self.learner.init, jax.random.PRNGKey(0)))
         # On the host: the copies are then placed on the mesh like every other array (several hosts too).
-        networks = jax.device_get(_restore_networks(Path(self.config.init_from), one_seed))
+        networks = jax.device_get(restore_networks(Path(self.config.init_from), one_seed))
         index, seeds = self.config.init_seed_index, self.config.seeds
         chosen = jax.tree_util.tree_map(
             lambda leaf: np.broadcast_to(leaf[index], (seeds, *leaf.shape[1:])), networks
@@ -120,7 +110,7 @@ class Experiment:
             target_critic_params=chosen["critic"]["target_critic_params"],
         )
 
-    def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, dict[str, Any]]:
+    def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, CheckpointInfo]:
         """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one
         (whatever mesh wrote it), and its info (CheckpointError if it is missing, unreadable or does not
         match)."""
@@ -182,27 +172,45 @@ class Experiment:
     @functools.cached_property
     def _evaluation_env(self) -> MultiTaskEnv:
         """The train bodies with ``config.eval_episodes`` copies each, one run per seed."""
-        return MultiTaskEnv(
-            self.tasks.bodies,
-            self.config.eval_episodes,
-            torso_relative_x=self.config.torso_relative_x,
-            stale_kinematics=self.config.stale_kinematics,
-            physics=self.config.physics,
-            runs=self.config.seeds,
-        )
+        return make_env(self.config, self.tasks.bodies, self.config.eval_episodes, self.config.seeds)
 
     def _recipe(self, env: MultiTaskEnv) -> tuple[Any, ...] | None:
         """:func:`program_recipe` with the mesh the programs place their outputs on."""
         return program_recipe(self.config, env, self.placement, self.placement.mesh.device_ids.tolist())
 
-    def info(self) -> dict[str, Any]:
-        """What a policy needs besides its parameters, stored in every checkpoint."""
-        return {
-            "seeds": list(self.config.seed_values()),
-            "bodies": list(self.env.body_names),
-            "max_limbs": self.env.max_limbs,
-            "observation_features": self.env.observation_features,
-        }
+    def checkpoint_info(
+        self, env_steps: int, iterations: int, seconds: float, **extra: Any
+    ) -> CheckpointInfo:
+        """The record a checkpoint of this run stores: progress, and what a policy needs besides its
+        parameters (seeds, bodies, padded limbs, observation features); ``extra``: CheckpointInfo's optional
+        fields."""
+        return CheckpointInfo(
+            env_steps=env_steps,
+            iterations=iterations,
+            seconds=seconds,
+            seeds=tuple(self.config.seed_values()),
+            bodies=tuple(self.env.body_names),
+            max_limbs=self.env.max_limbs,
+            observation_features=self.env.observation_features,
+            **extra,
+        )
+
+
+def make_env(
+    config: TrainConfig, bodies: Sequence[Morphology], copies: int, runs: int, *, lock_step: bool = False
+) -> MultiTaskEnv:
+    """The environments of ``bodies`` as a run with ``config`` simulates them (its observation switches and
+    physics): ``copies`` per body, for ``runs`` seeds vmapped over them (the one place a config becomes a
+    :class:`~swat_jax.envs.multi_task.MultiTaskEnv`)."""
+    return MultiTaskEnv(
+        bodies,
+        copies,
+        torso_relative_x=config.torso_relative_x,
+        stale_kinematics=config.stale_kinematics,
+        physics=config.physics,
+        runs=runs,
+        lock_step=lock_step,
+    )
 
 
 def program_recipe(config: TrainConfig, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:
@@ -211,133 +219,3 @@ def program_recipe(config: TrainConfig, env: MultiTaskEnv, *extra: Any) -> tuple
     definition and ``extra``; None where the environments' programs cannot be cached (Warp physics)."""
     definition = env.definition()
     return None if definition is None else (config.program_config(), definition, *extra)
-
-
-def network_items(learner: LearnerState) -> dict[str, Any]:
-    """The networks of a learner state as the checkpoint items ``actor`` (the actor's parameters) and
-    ``critic`` (the critic's and both targets'), every seed."""
-    return {
-        "actor": learner.actor_params,
-        "critic": {
-            "critic_params": learner.critic_params,
-            "target_actor_params": learner.target_actor_params,
-            "target_critic_params": learner.target_critic_params,
-        },
-    }
-
-
-def _restore_networks(run_dir: Path, one_seed: dict[str, Any]) -> dict[str, Any]:
-    """The items of ``one_seed`` (single-seed shapes, see :func:`network_items`) from the newest checkpoint
-    of ``run_dir``, with the run's seed axis in front (CheckpointError if there is none)."""
-    checkpoints = Checkpoints(run_dir)
-    try:
-        seeds = len(_newest_info(run_dir, checkpoints)["seeds"])
-        return {
-            name: checkpoints.restore_item(
-                name,
-                jax.tree_util.tree_map(
-                    lambda leaf: jax.ShapeDtypeStruct((seeds, *leaf.shape), leaf.dtype), template
-                ),
-            )
-            for name, template in one_seed.items()
-        }
-    finally:
-        checkpoints.close()
-
-
-def _newest_info(run_dir: Path, checkpoints: Checkpoints) -> dict[str, Any]:
-    """The info of the newest checkpoint (CheckpointError if there is none or it predates the seed axis)."""
-    if checkpoints.latest_step() is None:
-        raise CheckpointError(
-            f"{run_dir} has no checkpoint yet, so there is no trained policy to load: training writes "
-            "one every --checkpoint-interval steps, at its end and when it is stopped"
-        )
-    info = checkpoints.info()
-    if "seeds" not in info:
-        raise CheckpointError(
-            f"{checkpoints.directory} was written before runs had a seed axis (swat_jax 0.1.0 before "
-            "multi-seed training); train the run again"
-        )
-    return info
-
-
-def _check_transfer(config: TrainConfig, observation_features: int) -> None:
-    """ConfigError, naming both runs, if run ``config.init_from``'s networks cannot start this run."""
-    source_dir = Path(config.init_from)
-    if not source_dir.is_dir():
-        raise ConfigError(f"--init-from {source_dir}: no such run directory")
-    source = load_config(source_dir / CONFIG_FILE)
-    checkpoints = Checkpoints(source_dir)
-    try:
-        info = _newest_info(source_dir, checkpoints)
-    finally:
-        checkpoints.close()
-    theirs, ours = source.network(), config.network()
-    problems = [
-        f"{field.name} {getattr(theirs, field.name)!r} there, {getattr(ours, field.name)!r} here"
-        for field in dataclasses.fields(theirs)
-        if getattr(theirs, field.name) != getattr(ours, field.name)
-    ]
-    if int(info["observation_features"]) != observation_features:
-        problems.append(
-            f"{info['observation_features']} observation features per limb there, {observation_features} "
-            "here (another family vocabulary)"
-        )
-    if config.init_seed_index >= len(info["seeds"]):
-        problems.append(
-            f"--init-seed-index {config.init_seed_index}, but it has {len(info['seeds'])} seeds "
-            f"({', '.join(map(str, info['seeds']))})"
-        )
-    if problems:
-        raise ConfigError(
-            f"--init-from {source_dir} ({source.algo} on {Path(source.env).name}) cannot start "
-            f"{config.directory()} ({config.algo} on {Path(config.env).name}): "
-            + "; ".join(problems)
-            + ". Give this run the same --algo and network sizes as that one"
-        )
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainedPolicy:
-    """A run's actor and its newest parameters, for every seed of the run; ``act`` is deterministic."""
-
-    config: TrainConfig
-    actor: LimbNetwork
-    params: Params
-    """[S, ...] actor parameters stacked on a leading seed axis, in the order of ``seeds``."""
-    info: dict[str, Any]
-    """env_steps, iterations, seconds, seeds, bodies, max_limbs, observation_features of the checkpoint."""
-
-    @property
-    def seeds(self) -> tuple[int, ...]:
-        """The seed of each slice of ``params``."""
-        return tuple(self.info["seeds"])
-
-    def seed_params(self, seed_index: int) -> Params:
-        """The parameters of the ``seed_index``-th seed (ConfigError naming the valid range if out of it)."""
-        if not 0 <= seed_index < len(self.seeds):
-            raise ConfigError(
-                f"--seed-index {seed_index}: {self.config.directory()} holds {len(self.seeds)} seeds "
-                f"({', '.join(map(str, self.seeds))}); use an index from 0 to {len(self.seeds) - 1}"
-            )
-        return jax.tree_util.tree_map(lambda leaf: leaf[seed_index], self.params)
-
-    def act(self, observation: jax.Array, structure: StructureBatch, seed_index: int = 0) -> jax.Array:
-        """observation [batch, limbs, F] and one body's structure slice -> actions [batch, limbs] in [-1, 1]."""
-        return self.actor.apply(self.seed_params(seed_index), observation, structure)
-
-
-def load_policy(run_dir: str | Path) -> TrainedPolicy:
-    """The actor of the newest checkpoint of ``run_dir``, every seed (ConfigError / CheckpointError if unusable)."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise ConfigError(f"{run_dir}: no such run directory")
-    config = load_config(run_dir / CONFIG_FILE)
-    checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
-    try:
-        info = _newest_info(run_dir, checkpoints)
-    finally:
-        checkpoints.close()
-    actor, _ = make_actor_critic(config.network(), int(info["observation_features"]))
-    one_seed = {"actor": jax.eval_shape(actor.init, jax.random.PRNGKey(0))}
-    return TrainedPolicy(config, actor, _restore_networks(run_dir, one_seed)["actor"], info)

@@ -1,0 +1,238 @@
+"""An exported policy file read back and run: needs only jax and numpy, nothing of training.
+
+``python -m swat_jax.export`` writes the file (:mod:`swat_jax.export`); :func:`load` reads it. The file is
+a NumPy ``.npz`` archive (read with ``allow_pickle=False``) holding
+
+- ``program``: the serialised :class:`jax.export.Exported` (uint8 bytes): ``policy(observation [b, L, F],
+  *structure fields) -> actions [b, L]``, with the parameters baked in and a symbolic batch size;
+- ``metadata``: a JSON string: format and version, the jax version that wrote the program, algo, env,
+  env steps, max limbs, observation features, the order of the structure inputs, the bodies stored
+  below and the platforms compiled for;
+- ``structure.<field>``: the padded structure arrays of every body of the run's set (train and test),
+  [K, L, ...] in the order of ``metadata["bodies"]``, so a body can be named instead of encoded::
+
+    policy = swat_jax.serving.load("walker.npz")
+    actions = policy(observation, "walker_3_main")  # observation [batch, L, F] -> actions [batch, L]
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+FORMAT = "swat_jax.exported_policy"
+"""``metadata["format"]`` of every exported policy file."""
+FORMAT_VERSION = 1
+"""``metadata["format_version"]`` written here; :func:`load` reads this version and earlier ones."""
+SUFFIX = ".npz"
+PROGRAM_KEY = "program"
+METADATA_KEY = "metadata"
+STRUCTURE_PREFIX = "structure."
+
+StructureInput = str | Mapping[str, Any] | Any
+"""A body name of the file, a mapping from structure field to array, or a StructureBatch slice."""
+
+
+class ExportError(ValueError):
+    """A run that cannot be exported as asked, or a file that is not a usable exported policy."""
+
+
+def policy_path(path: str | Path) -> Path:
+    """``path`` as a Path, checked to end in ``.npz``; ExportError otherwise."""
+    path = Path(path)
+    if path.suffix.lower() != SUFFIX:
+        raise ExportError(
+            f"{path}: an exported policy is a NumPy archive; use the suffix {SUFFIX}, "
+            f"not {path.suffix or '(none)'!r}"
+        )
+    return path
+
+
+class ExportedPolicy:
+    """A policy read from an exported file; calling it needs only jax and numpy.
+
+    ``policy(observation, structure)`` maps observation [batch, L, F] to actions [batch, L] in [-1, 1]
+    (zero on padded limbs), where ``structure`` is a body name of the file, or the structure of one body
+    padded to L limbs: a StructureBatch slice or a mapping from field name to array. Each new batch size
+    compiles once.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        exported: jax.export.Exported,
+        metadata: dict[str, Any],
+        structures: dict[str, np.ndarray],
+    ):
+        self.path = path
+        self.metadata = metadata
+        """The file's metadata (see the module docstring)."""
+        self._exported = exported
+        self._call = jax.jit(exported.call)
+        self._fields: list[str] = list(metadata["structure_fields"])
+        self._structures = structures
+        self._by_name: dict[str, tuple[jax.Array, ...]] = {}
+
+    @property
+    def max_limbs(self) -> int:
+        """L: observations and structures are padded to this many limbs."""
+        return int(self.metadata["max_limbs"])
+
+    @property
+    def observation_features(self) -> int:
+        """F: observation values per limb."""
+        return int(self.metadata["observation_features"])
+
+    @property
+    def bodies(self) -> tuple[str, ...]:
+        """The body names whose structures the file holds (the run's train and test bodies)."""
+        return tuple(self.metadata["bodies"])
+
+    def structure(self, body: str) -> dict[str, np.ndarray]:
+        """One body's structure padded to L limbs, by field name (limb_mask [L], parents [L], ...)."""
+        if body not in self.bodies:
+            raise ValueError(f"{self.path} has no body {body!r}; it has {', '.join(self.bodies)}")
+        row = self.bodies.index(body)
+        return {name: self._structures[name][row] for name in self._fields}
+
+    def __call__(self, observation: Any, structure: StructureInput) -> jax.Array:
+        """observation [batch, L, F] (rows beyond the body's limbs are ignored), one body's structure ->
+        actions [batch, L] float32 in [-1, 1], zero on padded limbs."""
+        observation = np.asarray(observation) if not isinstance(observation, jax.Array) else observation
+        expected = (self.max_limbs, self.observation_features)
+        if observation.ndim != 3 or tuple(observation.shape[1:]) != expected or observation.shape[0] < 1:
+            raise ValueError(
+                f"observation must be [batch, {expected[0]}, {expected[1]}] (batch >= 1, limbs padded to max_limbs "
+                f"{expected[0]}, {expected[1]} observation features), got shape "
+                f"{tuple(observation.shape)}"
+            )
+        fields = self._structure_arrays(structure)
+        return self._call(observation.astype(np.float32), *fields)
+
+    def _structure_arrays(self, structure: StructureInput) -> tuple[Any, ...]:
+        """The structure inputs of the program, in order, checked against its input shapes."""
+        if isinstance(structure, str):
+            if structure not in self._by_name:
+                self._by_name[structure] = tuple(
+                    jax.device_put(array) for array in self.structure(structure).values()
+                )
+            return self._by_name[structure]
+        arrays = []
+        for name, aval in zip(self._fields, self._exported.in_avals[1:], strict=True):
+            value = structure.get(name) if isinstance(structure, Mapping) else getattr(structure, name, None)
+            if value is None:
+                raise ValueError(f"structure has no field {name!r}; it needs {', '.join(self._fields)}")
+            if tuple(np.shape(value)) != tuple(aval.shape):
+                raise ValueError(
+                    f"structure.{name} must be {list(aval.shape)} {aval.dtype} (one body padded to max_limbs "
+                    f"{self.max_limbs}), got shape {list(np.shape(value))}"
+                )
+            arrays.append(
+                value.astype(aval.dtype) if isinstance(value, jax.Array) else np.asarray(value, aval.dtype)
+            )
+        return tuple(arrays)
+
+
+def load(path: str | Path) -> ExportedPolicy:
+    """Read an exported policy file and check that this jax can run its program.
+
+    The program's StableHLO is deserialised and lowered here, for a batch of one, rather than at the first
+    call: a file written by a newer jax than this one (whose StableHLO this jax cannot read) is refused at
+    load time. ExportError names the file and what is wrong with it.
+    """
+    path = Path(path)
+    with _open(path) as archive:
+        metadata = _metadata(path, archive)
+        fields = metadata["structure_fields"]
+        missing = [
+            f"{STRUCTURE_PREFIX}{name}" for name in fields if f"{STRUCTURE_PREFIX}{name}" not in archive
+        ]
+        if missing:
+            raise ExportError(f"{path}: not a complete exported policy: no {', '.join(missing)}")
+        structures = {name: archive[f"{STRUCTURE_PREFIX}{name}"] for name in fields}
+        program = archive[PROGRAM_KEY]
+    try:
+        exported = jax.export.deserialize(bytearray(program.tobytes()))
+    except ImportError:
+        raise  # flatbuffers, which jax needs to read any exported program, is not installed
+    except Exception as error:
+        raise _unusable_program(path, metadata, "read", error) from error
+    if len(exported.in_avals) != 1 + len(fields):
+        raise ExportError(
+            f"{path}: its program takes {len(exported.in_avals)} inputs, but the metadata names "
+            f"{1 + len(fields)} (observation and {', '.join(fields)})"
+        )
+    try:
+        jax.jit(exported.call).lower(*_one_sample_inputs(exported))
+    except Exception as error:
+        raise _unusable_program(path, metadata, "run", error) from error
+    return ExportedPolicy(path, exported, metadata, structures)
+
+
+def _one_sample_inputs(exported: jax.export.Exported) -> list[jax.ShapeDtypeStruct]:
+    """The program's input shapes with the symbolic batch dimension set to 1: observation [1, L, F], then
+    the structure fields [L, ...]."""
+    return [
+        jax.ShapeDtypeStruct(tuple(size if isinstance(size, int) else 1 for size in aval.shape), aval.dtype)
+        for aval in exported.in_avals
+    ]
+
+
+def _unusable_program(path: Path, metadata: dict[str, Any], verb: str, error: Exception) -> ExportError:
+    """The error for a program this jax cannot ``verb`` ("read" or "run"): export again with this jax."""
+    written_with = metadata.get("jax_version", "an unrecorded version")
+    reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    return ExportError(
+        f"{path}: its program was written by jax {written_with} and cannot be {verb} by this jax "
+        f"{jax.__version__} ({type(error).__name__}: {reason}); export the policy again with jax "
+        f"{jax.__version__} (python -m swat_jax.export RUN_DIR -o {path.name})"
+    )
+
+
+def _open(path: Path) -> Any:
+    """The NpzFile of ``path``; ExportError if it is missing or not an exported policy."""
+    if not path.is_file():
+        raise ExportError(f"{path}: no such file; write one with python -m swat_jax.export RUN_DIR -o {path}")
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        raise ExportError(f"{path}: not an exported policy (not a NumPy .npz archive: {error})") from error
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ExportError(f"{path}: not an exported policy (a single .npy array, not an .npz archive)")
+    missing = [key for key in (PROGRAM_KEY, METADATA_KEY) if key not in archive]
+    if missing:
+        archive.close()
+        raise ExportError(
+            f"{path}: not an exported policy: the archive has no {' or '.join(missing)} "
+            f"(it holds {', '.join(archive.files) or 'nothing'}); write one with python -m swat_jax.export"
+        )
+    return archive
+
+
+def _metadata(path: Path, archive: Any) -> dict[str, Any]:
+    """The checked metadata of an open archive."""
+    try:
+        metadata = json.loads(str(archive[METADATA_KEY]))
+    except (ValueError, TypeError) as error:
+        raise ExportError(f"{path}: not an exported policy: its metadata is not JSON ({error})") from error
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
+        raise ExportError(f"{path}: not an exported policy: its metadata format is not {FORMAT!r}")
+    version = metadata.get("format_version")
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise ExportError(
+            f"{path}: format version {version!r} is newer than this swat_jax reads ({FORMAT_VERSION}); "
+            f"update swat_jax or export the policy again"
+        )
+    missing = [
+        key
+        for key in ("max_limbs", "observation_features", "structure_fields", "bodies")
+        if key not in metadata
+    ]
+    if missing:
+        raise ExportError(f"{path}: not a complete exported policy: its metadata has no {', '.join(missing)}")
+    return metadata
