@@ -227,7 +227,7 @@ def test_a_stop_request_is_honoured_within_one_iteration(trained_run, hopper_fol
     assert len(finished) <= at_signal[0] + 2, (
         f"{at_signal[0]} iterations had finished when the stop was requested, {len(finished)} ran"
     )
-    assert final_state(tmp_path / "stopped")[1]["iterations"] == len(finished)
+    assert final_state(tmp_path / "stopped")[1].iterations == len(finished)
 
 
 def run_training_command(flags: list[str], signals_after: dict[str, list[float]], timeout: float = 120):
