@@ -1,24 +1,17 @@
-"""Pieces shared by the command lines (render, train, eval, export, plot)."""
+"""Pieces shared by the command lines (train, eval, export, plot, render, morphology, convert)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import tyro
+
 ERROR_STATUS = 2
 """Exit status for a bad input: an option, a body, a run directory or a file name."""
-
-
-def positive_int(text: str) -> int:
-    """argparse type: a whole number of at least 1."""
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return value
 
 
 def strict_json(value: Any, indent: int | None = None) -> str:
@@ -41,19 +34,23 @@ def strict_json(value: Any, indent: int | None = None) -> str:
 
 
 def run_command(
-    parser: argparse.ArgumentParser,
-    run: Callable[[argparse.Namespace], str | None],
+    command_type: Any,
+    run: Callable[[Any], str | None],
     argv: Sequence[str] | None,
     errors: tuple[type[Exception], ...],
+    *,
+    prog: str,
 ) -> int:
-    """Parse ``argv``, call ``run`` and print the text it returns; returns the exit status.
+    """Parse ``argv`` into ``command_type`` with tyro (a frozen dataclass whose fields' docstrings are the
+    ``--help`` lines, or a union of them for subcommands), call ``run`` on it and print the text it returns;
+    returns the exit status.
 
-    An exception of ``errors`` (bad input: a run directory, a body, an option) is printed as one
-    ``error: ...`` line on standard error and gives ERROR_STATUS; anything else is a bug and raises.
+    An exception of ``errors`` (bad input: a run directory, a body, an option's value), raised while the
+    command is built or run, is printed as one ``error: ...`` line on standard error and gives
+    ERROR_STATUS; anything else is a bug and raises. An unknown option exits with ERROR_STATUS from tyro.
     """
-    args = parser.parse_args(argv)
     try:
-        text = run(args)
+        text = run(tyro.cli(command_type, args=argv, prog=prog))
     except errors as error:
         print(f"error: {error}", file=sys.stderr)
         return ERROR_STATUS

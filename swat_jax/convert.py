@@ -17,7 +17,6 @@ Reading ``.pyth`` files needs PyTorch (``pip install -e ".[original]"``); nothin
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import re
@@ -28,7 +27,9 @@ from typing import Any
 
 import jax
 import numpy as np
+import tyro
 
+from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.networks import NetworkConfig
 from swat_jax.networks.original_weights import StateDict, actor_params, critic_params
@@ -253,40 +254,37 @@ def _with_seed_axis(path: Path, name: str, ours: Any, theirs: Any) -> Any:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.convert",
-        description="Turn a model saved by the original SWAT code (its main.py) into a swat_jax run directory "
-        "that eval, export, render and --init-from accept.",
-    )
-    parser.add_argument("original", help=f"the original run's folder: its {ARGS_FILE} and model_N.pyth files")
-    parser.add_argument("--run-dir", required=True, help="the swat_jax run directory to write")
-    parser.add_argument(
-        "--checkpoint",
-        default=None,
-        help="which file of the folder to read (default: model.pyth, else the newest model_N.pyth)",
-    )
-    parser.add_argument(
-        "--env",
-        default=None,
-        help="environment set or MJCF folder of the run (default: from the original's custom_xml folder name)",
-    )
-    parser.add_argument("--overwrite", action="store_true", help="replace --run-dir if it exists")
-    return parser
+@dataclasses.dataclass(frozen=True)
+class ConvertCommand:
+    """Turn a model saved by the original SWAT code (its main.py) into a swat_jax run directory that eval,
+    export, render and --init-from accept."""
+
+    original: tyro.conf.Positional[Path]
+    """The original run's folder: its args.txt and model_N.pyth files."""
+    run_dir: str
+    """The swat_jax run directory to write."""
+    checkpoint: str | None = None
+    """Which file of the folder to read; None: model.pyth, else the newest model_N.pyth."""
+    env: str | None = None
+    """Environment set or MJCF folder of the run; None: from the original's custom_xml folder name."""
+    overwrite: bool = False
+    """Replace --run-dir if it exists."""
+
+
+def run(command: ConvertCommand) -> str:
+    """Convert as the command says; returns what was written."""
+    model = read_original(command.original, command.checkpoint)
+    config = train_config(model, env=command.env, run_dir=command.run_dir)
+    run_dir = convert(model, config, overwrite=command.overwrite)
+    return f"wrote {run_dir} ({config.algo} on {config.env}) from {model.path}"
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status (2 for an unreadable original run or a bad option)."""
     enable_caches()
-    args = build_parser().parse_args(argv)
-    try:
-        model = read_original(args.original, args.checkpoint)
-        config = train_config(model, env=args.env, run_dir=args.run_dir)
-        run_dir = convert(model, config, overwrite=args.overwrite)
-    except (ConversionError, ConfigError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(f"wrote {run_dir} ({config.algo} on {config.env}) from {model.path}")
-    return 0
+    return run_command(
+        ConvertCommand, run, argv, (ConversionError, ConfigError), prog="python -m swat_jax.convert"
+    )
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ over seeds of each seed's mean return (the paper's Tables 3-4).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
@@ -21,18 +20,17 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
-from swat_jax.cli import positive_int, run_command, strict_json
+from swat_jax.cli import run_command, strict_json
 from swat_jax.compilation_cache import compile_cached, enable_caches
 from swat_jax.morphology import MorphologyError, get_set
 from swat_jax.runs.checkpoint import CheckpointError
-from swat_jax.runs.config import ConfigError
+from swat_jax.runs.config import Split, require_positive
 from swat_jax.runs.experiment import make_env, program_recipe
 from swat_jax.runs.metrics import standard_error
 from swat_jax.runs.trained import TrainedPolicy, load_policy
 from swat_jax.td3.evaluation import make_evaluation
-
-SPLITS = ("train", "test", "all")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,74 +172,57 @@ def json_report(results: Sequence[BodyEvaluation]) -> dict[str, Any]:
     }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line parser."""
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.eval",
-        description="Evaluate the newest checkpoint of a training run deterministically (no exploration "
-        "noise): per body, the mean and standard deviation of the return and the episode length; for a "
-        "multi-seed run, every seed and the mean and standard error over seeds.",
-    )
-    parser.add_argument(
-        "run_dirs",
-        type=Path,
-        nargs="+",
-        metavar="RUN_DIR",
-        help="run directories written by swat_jax.train (several: one table, or one --markdown column, each)",
-    )
-    parser.add_argument(
-        "--split",
-        choices=SPLITS,
-        default="train",
-        help="train (default): the bodies the run trained on; test: its environment set's held-out bodies "
-        "(zero-shot); all: both",
-    )
-    parser.add_argument(
-        "--bodies",
-        nargs="+",
-        default=(),
-        metavar="NAME_OR_PATH",
-        help="evaluate these bodies (benchmark names or MJCF paths) instead of a split",
-    )
-    parser.add_argument("--episodes", type=positive_int, default=100, help="episodes per body (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise (default 0)")
-    parser.add_argument(
-        "--seed-index",
-        type=int,
-        metavar="K",
-        help="evaluate only the K-th seed of a multi-seed run (an index into its seeds; default: every seed, "
-        "summarised as the mean ± standard error over seeds)",
-    )
-    output = parser.add_mutually_exclusive_group()
-    output.add_argument("--json", action="store_true", help="print the results as JSON instead of a table")
-    output.add_argument(
-        "--markdown",
-        action="store_true",
-        help="print one Markdown table, a row per body and a column per run: the mean ± standard error over "
-        "seeds of each seed's mean return (the paper's Tables 3-4)",
-    )
-    parser.add_argument(
-        "--video", type=Path, metavar="DIR", help="also write DIR/<body>.mp4 of each body's first episode"
-    )
-    return parser
-
-
 @dataclasses.dataclass(frozen=True)
 class EvalOptions:
-    """What to evaluate in a run, as the command line's options say it (``evaluate_run``'s argument)."""
+    """What to evaluate in a run (``evaluate_run``'s argument; the command line's options)."""
 
-    split: str = "train"
-    """train: the bodies the run trained on; test: its set's held-out bodies (zero-shot); all: both."""
+    split: Split = "train"
+    """train: the bodies the run trained on; test: its environment set's held-out bodies (zero-shot); all:
+    both."""
     bodies: tuple[str, ...] = ()
-    """Benchmark names or MJCF paths to evaluate instead of a split."""
+    """Evaluate these bodies (benchmark names or MJCF paths) instead of a split."""
     episodes: int = 100
     """Episodes per body, per seed."""
     seed: int = 0
     """Seed of the reset noise."""
     seed_index: int | None = None
-    """Only this seed of a multi-seed run (an index into its seeds); None: every seed."""
+    """Evaluate only the K-th seed of a multi-seed run (an index into its seeds); None: every seed,
+    summarised as the mean ± standard error over seeds."""
     video: Path | None = None
-    """Also write ``video/<body>.mp4`` of each body's first episode."""
+    """Also write VIDEO/<body>.mp4 of each body's first episode (a folder)."""
+
+    def __post_init__(self) -> None:
+        require_positive("--episodes", self.episodes)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvalCommand(EvalOptions):
+    """Evaluate the newest checkpoint of a training run deterministically (no exploration noise): per body,
+    the mean and standard deviation of the return and the episode length; for a multi-seed run, every seed
+    and the mean and standard error over seeds."""
+
+    run_dirs: tyro.conf.Positional[tuple[Path, ...]]
+    """Run directories written by swat_jax.train (several: one table, or one --markdown column, each)."""
+    json: bool = False
+    """Print the results as JSON instead of a table."""
+    markdown: bool = False
+    """Print one Markdown table, a row per body and a column per run: the mean ± standard error over seeds
+    of each seed's mean return (the paper's Tables 3-4)."""
+
+    def check(self) -> None:
+        """ValueError for options that contradict each other or a missing RUN_DIR."""
+        if not self.run_dirs:
+            raise ValueError("give at least one RUN_DIR (a folder written by python -m swat_jax.train)")
+        if self.json and self.markdown:
+            raise ValueError("--json and --markdown are two formats of one output; choose one")
+        if self.video and len(self.run_dirs) > 1:
+            raise ValueError("--video takes one RUN_DIR; evaluate the runs one at a time to record them")
+
+    def options(self) -> EvalOptions:
+        """The evaluation options alone."""
+        return EvalOptions(
+            **{field.name: getattr(self, field.name) for field in dataclasses.fields(EvalOptions)}
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -322,27 +303,19 @@ def json_run(run: RunEvaluation, options: EvalOptions) -> dict[str, Any]:
     }
 
 
-def run(args: argparse.Namespace) -> str:
-    """Evaluate (and render) per the parsed command line; returns the text to print."""
-    if args.video and len(args.run_dirs) > 1:
-        raise ValueError("--video takes one RUN_DIR; evaluate the runs one at a time to record them")
-    options = EvalOptions(
-        split=args.split,
-        bodies=tuple(args.bodies),
-        episodes=args.episodes,
-        seed=args.seed,
-        seed_index=args.seed_index,
-        video=args.video,
-    )
-    runs = [evaluate_run(run_dir, options) for run_dir in args.run_dirs]
-    if args.markdown:
-        return markdown_table(runs, args.episodes)
-    if args.json:
+def run(command: EvalCommand) -> str:
+    """Evaluate (and render) as the command says; returns the text to print."""
+    command.check()
+    options = command.options()
+    runs = [evaluate_run(run_dir, options) for run_dir in command.run_dirs]
+    if command.markdown:
+        return markdown_table(runs, options.episodes)
+    if command.json:
         reports = [json_run(run, options) for run in runs]
         return strict_json(reports[0] if len(reports) == 1 else {"runs": reports}, indent=2)
     return "\n\n".join(
         f"{run.run_dir} after {run.policy.info.env_steps:,} environment steps ({run.policy.config.algo})\n"
-        + format_table(run.results, args.episodes)
+        + format_table(run.results, options.episodes)
         for run in runs
     )
 
@@ -351,7 +324,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
     enable_caches()
     return run_command(
-        build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
+        EvalCommand,
+        run,
+        argv,
+        (CheckpointError, MorphologyError, ValueError, OSError),
+        prog="python -m swat_jax.eval",
     )
 
 

@@ -13,19 +13,19 @@ which needs only jax and numpy, are :mod:`swat_jax.serving`::
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, get_args
 
 import jax
 import numpy as np
+import tyro
 
-from swat_jax.cli import ERROR_STATUS, positive_int
+from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import StructureBatch, get_set
 from swat_jax.morphology import load as load_body
@@ -39,14 +39,15 @@ from swat_jax.serving import (
     METADATA_KEY,
     PROGRAM_KEY,
     STRUCTURE_PREFIX,
-    SUFFIX,
     ExportError,
     policy_path,
 )
 
-PLATFORMS = ("cpu", "cuda")
+Platform = Literal["cpu", "cuda", "rocm", "tpu"]
+"""A platform jax.export compiles for."""
+KNOWN_PLATFORMS: tuple[str, ...] = get_args(Platform)
+PLATFORMS: tuple[Platform, ...] = ("cpu", "cuda")
 """Default platforms compiled into the file: one file runs on CPU and on NVIDIA GPUs."""
-KNOWN_PLATFORMS = ("cpu", "cuda", "rocm", "tpu")
 WRITE_STATUS = 1
 """Exit status when the file cannot be written."""
 
@@ -157,7 +158,6 @@ def export_policy(
         MorphologyError: a body of the run's set cannot be loaded.
         ExportError: the output name, ``max_limbs`` or ``platforms`` does not fit.
     """
-    # The training code is imported here only, so that `load` runs without it.
     output = policy_path(output)
     platforms = _checked_platforms(platforms)
     policy = load_policy(run_dir)
@@ -217,79 +217,52 @@ def _checked_platforms(platforms: Sequence[str]) -> tuple[str, ...]:
     return chosen
 
 
-def _platform_list(text: str) -> tuple[str, ...]:
-    try:
-        return _checked_platforms([part.strip() for part in text.split(",") if part.strip()])
-    except ExportError as error:
-        raise argparse.ArgumentTypeError(str(error)) from error
+@dataclasses.dataclass(frozen=True)
+class ExportCommand:
+    """Write the newest checkpoint's policy of a training run as one file that runs without the training
+    code (swat_jax.serving.load, which needs only jax and numpy). The body structure is an input, so the
+    file serves every body of up to --max-limbs limbs, at any batch size."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """Training run directory to export."""
+    output: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """Policy file to write (.npz)."""
+    max_limbs: int | None = None
+    """Limb count every input is padded to; None: the largest body of the run's set, train and test."""
+    platforms: tuple[Platform, ...] = PLATFORMS
+    """Platforms to compile for (the file runs on each)."""
+    seed_index: int = 0
+    """Which seed of a multi-seed run to export: an index into the run's seeds (0, the first)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line parser."""
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.export",
-        description="Write the newest checkpoint's policy of a training run as one file that runs without "
-        "the training code (swat_jax.serving.load, which needs only jax and numpy). The body structure is an "
-        "input, so the file serves every body of up to --max-limbs limbs, at any batch size.",
-    )
-    parser.add_argument("run_dir", metavar="RUN_DIR", type=Path, help="training run directory to export")
-    parser.add_argument("-o", "--output", type=Path, required=True, help=f"policy file to write ({SUFFIX})")
-    parser.add_argument(
-        "--max-limbs",
-        type=positive_int,
-        metavar="N",
-        help="limb count every input is padded to (default: the largest body of the run's set, train and test)",
-    )
-    parser.add_argument(
-        "--platforms",
-        type=_platform_list,
-        metavar="LIST",
-        default=PLATFORMS,
-        help=f"comma-separated platforms to compile for, of {', '.join(KNOWN_PLATFORMS)} "
-        f"(default {','.join(PLATFORMS)})",
-    )
-    parser.add_argument(
-        "--seed-index",
-        type=int,
-        default=0,
-        metavar="K",
-        help="which seed of a multi-seed run to export: an index into the run's seeds (default 0, the first)",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> None:
-    """Export one parsed command line and print what was written."""
+def run(command: ExportCommand) -> str:
+    """Export as the command says; returns what was written."""
     metadata = export_policy(
-        args.run_dir,
-        args.output,
-        max_limbs=args.max_limbs,
-        platforms=args.platforms,
-        seed_index=args.seed_index,
+        command.run_dir,
+        command.output,
+        max_limbs=command.max_limbs,
+        platforms=command.platforms,
+        seed_index=command.seed_index,
     )
-    size = args.output.stat().st_size / 2**20
-    print(
-        f"wrote {args.output} ({size:.1f} MiB): {metadata['algo']} policy (seed {metadata['seed']}) after "
-        f"{metadata['env_steps']:,} "
-        f"environment steps; max limbs {metadata['max_limbs']}, {metadata['observation_features']} observation "
-        f"features, platforms {', '.join(metadata['platforms'])}; bodies ({len(metadata['bodies'])}): "
-        f"{', '.join(metadata['bodies'])}"
+    size = command.output.stat().st_size / 2**20
+    return (
+        f"wrote {command.output} ({size:.1f} MiB): {metadata['algo']} policy (seed {metadata['seed']}) after "
+        f"{metadata['env_steps']:,} environment steps; max limbs {metadata['max_limbs']}, "
+        f"{metadata['observation_features']} observation features, platforms {', '.join(metadata['platforms'])}; "
+        f"bodies ({len(metadata['bodies'])}): {', '.join(metadata['bodies'])}"
     )
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run or option, 1 if writing fails)."""
     enable_caches()
-    args = build_parser().parse_args(argv)
     try:
-        run(args)
-    except (ValueError, CheckpointError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return ERROR_STATUS
+        return run_command(
+            ExportCommand, run, argv, (ValueError, CheckpointError), prog="python -m swat_jax.export"
+        )
     except OSError as error:
         print(f"error: {error}", file=sys.stderr)
         return WRITE_STATUS
-    return 0
 
 
 if __name__ == "__main__":

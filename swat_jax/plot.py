@@ -14,16 +14,17 @@ Figures are drawn off-screen with matplotlib's Agg canvas (no display, no pyplot
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Annotated, Literal, get_args
 
 import jax
 import numpy as np
+import tyro
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -39,7 +40,8 @@ from swat_jax.runs.config import CONFIG_FILE, ConfigError, TrainConfig, load_con
 from swat_jax.runs.metrics import CSV_FILE, read_metrics, standard_error
 from swat_jax.runs.trained import TrainedPolicy, load_policy
 
-METRIC_PREFIXES = {"train": "", "eval": "eval/"}
+Metric = Literal["train", "eval"]
+METRIC_PREFIXES = dict(zip(get_args(Metric), ("", "eval/"), strict=True))
 """Column prefix of each ``--metric``: the training episodes' returns (the paper's curves) or the
 deterministic evaluations during training."""
 CSV_COLUMNS = ("panel", "algorithm", "env_steps", "mean", "standard_error", "seeds")
@@ -423,77 +425,91 @@ def save(figure: Figure, path: Path) -> None:
     print(f"wrote {path}", file=sys.stderr)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line parser: one subcommand per figure."""
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.plot",
-        description="The paper's figures from training runs: learning curves, positional embeddings, "
-        "relational biases (PNG; curves also write their numbers as CSV).",
-    )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="{curves,embeddings,relations}")
-    curves = commands.add_parser(
-        "curves",
-        help="return against environment steps, mean ± standard error over seeds (Figures 4-6)",
-        description="Return against environment steps: the mean over a set's bodies, mean ± standard error "
-        "over seeds as a band, a line per algorithm (runs of one algorithm on one set pool their seeds) "
-        "and a panel per set. The plotted numbers are written beside the PNG as CSV.",
-    )
-    curves.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR", help="run directories")
-    curves.add_argument("--per-body", action="store_true", help="add a panel per body")
-    curves.add_argument(
-        "--metric",
-        choices=tuple(METRIC_PREFIXES),
-        default="train",
-        help="train (default): returns of the training episodes, as the paper plots; eval: the deterministic "
-        "evaluations of runs trained with --eval-interval",
-    )
-    embeddings = commands.add_parser(
-        "embeddings",
-        help="t-SNE of every limb's positional embedding (Figure 8)",
-        description="A t-SNE of every limb's traversal-based positional embedding over the run's set's train "
-        "and test bodies: marker by body, colour by limb type.",
-    )
-    embeddings.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run of swat or swat_no_re")
-    relations = commands.add_parser(
-        "relations",
-        help="the relational bias of each head on one body (Figures 9-11)",
-        description="The learned relational bias g(R) of each attention head on one body, as an n x n "
-        "heatmap per head labelled with the limb names.",
-    )
-    relations.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a run of swat or swat_no_pe")
-    relations.add_argument(
-        "--body", required=True, metavar="NAME_OR_PATH", help="a benchmark body name or an MJCF path"
-    )
-    for command in (curves, embeddings, relations):
-        command.add_argument(
-            "-o", "--output", type=Path, required=True, metavar="PNG", help="the PNG to write"
-        )
-    for command in (embeddings, relations):
-        command.add_argument(
-            "--seed-index",
-            type=int,
-            default=0,
-            metavar="K",
-            help="the K-th seed of a multi-seed run (an index into its seeds; default 0)",
-        )
-    return parser
+Png = Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+"""The ``-o/--output`` PNG of every figure."""
 
 
-def run(args: argparse.Namespace) -> None:
-    """Draw and save the figure the parsed command line asks for."""
-    if args.command == "curves":
-        plot_curves(args.run_dirs, args.output, metric=args.metric, per_body=args.per_body)
-    elif args.command == "embeddings":
-        plot_embeddings(args.run_dir, args.output, seed_index=args.seed_index)
-    else:
-        plot_relations(args.run_dir, args.body, args.output, seed_index=args.seed_index)
+@dataclasses.dataclass(frozen=True)
+class CurvesCommand:
+    """Return against environment steps (Figures 4-6): the mean over a set's bodies, mean ± standard error
+    over seeds as a band, a line per algorithm (runs of one algorithm on one set pool their seeds) and a
+    panel per set. The plotted numbers are written beside the PNG as CSV."""
+
+    run_dirs: tyro.conf.Positional[tuple[Path, ...]]
+    """Run directories."""
+    output: Png
+    """The PNG to write."""
+    per_body: bool = False
+    """Add a panel per body."""
+    metric: Metric = "train"
+    """train: returns of the training episodes, as the paper plots; eval: the deterministic evaluations of
+    runs trained with --eval-interval."""
+
+    def draw(self) -> Figure:
+        if not self.run_dirs:
+            raise ValueError("give at least one RUN_DIR (a folder written by python -m swat_jax.train)")
+        return plot_curves(self.run_dirs, self.output, metric=self.metric, per_body=self.per_body)
+
+
+@dataclasses.dataclass(frozen=True)
+class EmbeddingsCommand:
+    """A t-SNE of every limb's traversal-based positional embedding over the run's set's train and test
+    bodies (Figure 8): marker by body, colour by limb type."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """A run of swat or swat_no_re."""
+    output: Png
+    """The PNG to write."""
+    seed_index: int = 0
+    """The K-th seed of a multi-seed run (an index into its seeds)."""
+
+    def draw(self) -> Figure:
+        return plot_embeddings(self.run_dir, self.output, seed_index=self.seed_index)
+
+
+@dataclasses.dataclass(frozen=True)
+class RelationsCommand:
+    """The learned relational bias g(R) of each attention head on one body (Figures 9-11), as an n x n
+    heatmap per head labelled with the limb names."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """A run of swat or swat_no_pe."""
+    body: str
+    """A benchmark body name or an MJCF path."""
+    output: Png
+    """The PNG to write."""
+    seed_index: int = 0
+    """The K-th seed of a multi-seed run (an index into its seeds)."""
+
+    def draw(self) -> Figure:
+        return plot_relations(self.run_dir, self.body, self.output, seed_index=self.seed_index)
+
+
+PlotCommand = (
+    Annotated[CurvesCommand, tyro.conf.subcommand("curves")]
+    | Annotated[EmbeddingsCommand, tyro.conf.subcommand("embeddings")]
+    | Annotated[RelationsCommand, tyro.conf.subcommand("relations")]
+)
+"""``python -m swat_jax.plot curves|embeddings|relations``: the paper's figures from training runs (PNG;
+curves also write their numbers as CSV)."""
+
+
+def run(command: CurvesCommand | EmbeddingsCommand | RelationsCommand) -> str:
+    """Draw and save the figure the command asks for; returns what was written."""
+    command.draw()
+    extra = f" and {command.output.with_suffix('.csv')}" if isinstance(command, CurvesCommand) else ""
+    return f"wrote {command.output}{extra}"
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad run directory, body or option)."""
     enable_caches()
     return run_command(
-        build_parser(), run, argv, (ConfigError, CheckpointError, MorphologyError, ValueError, OSError)
+        PlotCommand,
+        run,
+        argv,
+        (CheckpointError, MorphologyError, ValueError, OSError),
+        prog="python -m swat_jax.plot",
     )
 
 

@@ -12,19 +12,20 @@ swat_jax/morphology/picture.py for what to install when no context can be create
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, get_args
 
 import imageio.v3 as iio
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import tyro
 
-from swat_jax.cli import ERROR_STATUS, positive_int
+from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.envs.body import BodyEnv, EnvState
 from swat_jax.morphology.mjcf import compile_model, load
@@ -37,10 +38,12 @@ from swat_jax.morphology.picture import (
     side_camera,
 )
 from swat_jax.morphology.types import Morphology
+from swat_jax.runs.config import require_positive
 
 TORSO = 1
 """MuJoCo body index of the torso (body 0 is the world)."""
-POLICIES = ("random", "zero")
+Actions = Literal["random", "zero"]
+POLICIES: tuple[str, ...] = get_args(Actions)
 """Action choices of :func:`rollout`: uniform in [-1, 1] per limb and step, or all zeros."""
 VIDEO_SUFFIXES = (".mp4", ".gif")
 MAX_GIF_FPS = 50
@@ -263,66 +266,60 @@ def render_rollout(
     return path
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line parser."""
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.render",
-        description="Simulate one body under random or zero actions and write a video of it, seen from the "
-        "side by a camera that follows the torso. The body is not reset when it falls. Rendering is "
-        "off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl).",
-    )
-    parser.add_argument(
-        "body",
-        metavar="NAME_OR_PATH",
-        help="benchmark body name (python -m swat_jax.morphology list) or MJCF path",
-    )
-    parser.add_argument("-o", "--output", type=Path, required=True, help="video file to write: .mp4 or .gif")
-    parser.add_argument("--steps", type=positive_int, default=200, help="environment steps (default 200)")
-    parser.add_argument(
-        "--policy",
-        choices=POLICIES,
-        default="random",
-        help="actions: uniform in [-1, 1] or zeros (default random)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the reset noise and actions (default 0)")
-    parser.add_argument("--width", type=positive_int, default=480, help="frame width in pixels (default 480)")
-    parser.add_argument(
-        "--height", type=positive_int, default=360, help="frame height in pixels (default 360)"
-    )
-    parser.add_argument(
-        "--fps",
-        type=positive_int,
-        help="playback frames per second (default: real time, 1 / the body's control step; at most 50 for GIF)",
-    )
-    return parser
+@dataclasses.dataclass(frozen=True)
+class RenderCommand:
+    """Simulate one body under random or zero actions and write a video of it, seen from the side by a
+    camera that follows the torso. The body is not reset when it falls. Rendering is off-screen;
+    MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl)."""
+
+    body: tyro.conf.Positional[str]
+    """Benchmark body name (python -m swat_jax.morphology list) or MJCF path."""
+    output: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """Video file to write: .mp4 or .gif."""
+    steps: int = 200
+    """Environment steps."""
+    policy: Actions = "random"
+    """Actions: uniform in [-1, 1] per limb and step, or zeros."""
+    seed: int = 0
+    """Seed of the reset noise and actions."""
+    width: int = 480
+    """Frame width in pixels."""
+    height: int = 360
+    """Frame height in pixels."""
+    fps: int | None = None
+    """Playback frames per second; None: real time (1 / the body's control step), at most 50 for GIF."""
+
+    def __post_init__(self) -> None:
+        for flag in ("steps", "width", "height"):
+            require_positive(f"--{flag}", getattr(self, flag))
+        if self.fps is not None:
+            require_positive("--fps", self.fps)
 
 
-def run(args: argparse.Namespace) -> None:
-    """Roll out, render and write the video of one parsed command line, printing what was written."""
-    video_path(args.output)
+def run(command: RenderCommand) -> str:
+    """Roll out, render and write the video the command asks for; returns what was written."""
+    video_path(command.output)
     gl_backend()
-    env = BodyEnv(args.body)
-    fps = default_fps(env.morphology, args.output) if args.fps is None else args.fps
-    states = rollout(env, args.steps, seed=args.seed, policy=args.policy)
-    path = render_rollout(env.morphology, states, args.output, fps=fps, width=args.width, height=args.height)
-    print(
-        f"wrote {path}: {args.steps + 1} frames of {env.morphology.name}, {args.width} x {args.height}, {fps} fps"
+    env = BodyEnv(command.body)
+    fps = default_fps(env.morphology, command.output) if command.fps is None else command.fps
+    states = rollout(env, command.steps, seed=command.seed, policy=command.policy)
+    path = render_rollout(
+        env.morphology, states, command.output, fps=fps, width=command.width, height=command.height
+    )
+    return (
+        f"wrote {path}: {command.steps + 1} frames of {env.morphology.name}, {command.width} x "
+        f"{command.height}, {fps} fps"
     )
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad body or option, 1 if rendering fails)."""
     enable_caches()
-    args = build_parser().parse_args(argv)
     try:
-        run(args)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return ERROR_STATUS
+        return run_command(RenderCommand, run, argv, (ValueError,), prog="python -m swat_jax.render")
     except (RenderingUnavailable, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return RENDERING_STATUS
-    return 0
 
 
 if __name__ == "__main__":

@@ -3,9 +3,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+import inspect
+import itertools
 import json
+import re
 import subprocess
 import sys
+import typing
 
 import pytest
 
@@ -18,7 +24,24 @@ HELP_COMMANDS = (
     ("swat_jax.morphology", "list"),
     ("swat_jax.morphology", "show"),
     ("swat_jax.morphology", "render"),
+    ("swat_jax.plot",),
+    ("swat_jax.plot", "curves"),
+    ("swat_jax.plot", "embeddings"),
+    ("swat_jax.plot", "relations"),
+    ("swat_jax.convert",),
 )
+COMMANDS = {
+    ("swat_jax.eval",): "swat_jax.eval:EvalCommand",
+    ("swat_jax.export",): "swat_jax.export:ExportCommand",
+    ("swat_jax.render",): "swat_jax.render:RenderCommand",
+    ("swat_jax.morphology", "show"): "swat_jax.morphology.__main__:ShowCommand",
+    ("swat_jax.morphology", "render"): "swat_jax.morphology.__main__:RenderCommand",
+    ("swat_jax.plot", "curves"): "swat_jax.plot:CurvesCommand",
+    ("swat_jax.plot", "embeddings"): "swat_jax.plot:EmbeddingsCommand",
+    ("swat_jax.plot", "relations"): "swat_jax.plot:RelationsCommand",
+    ("swat_jax.convert",): "swat_jax.convert:ConvertCommand",
+}
+"""The frozen dataclass each command line parses into (tyro, like train's TrainCommand)."""
 
 
 def command(module: str, *args: str) -> subprocess.Popen:
@@ -46,6 +69,35 @@ def help_outputs() -> dict[tuple[str, ...], str]:
 def test_help_starts_with_its_usage_line(help_outputs, argv):
     module, *subcommand = argv
     assert help_outputs[argv].startswith(f"usage: python -m {' '.join([module, *subcommand])} ")
+
+
+@pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
+def test_help_explains_every_field_of_the_command(help_outputs, argv):
+    """Every field is an option (or the positional argument) whose help line is the field's docstring."""
+    module, name = COMMANDS[argv].split(":")
+    command = getattr(importlib.import_module(module), name)
+    help_text = " ".join(help_outputs[argv].replace("│", " ").split())
+    hints = typing.get_type_hints(command, include_extras=True)
+    for field in dataclasses.fields(command):
+        positional = "Positional" in str(hints[field.name])
+        assert positional or f"--{field.name.replace('_', '-')}" in help_text, field.name
+    for docstring in field_docstrings(command):
+        first_words = " ".join(docstring.split()[:4])
+        assert first_words in help_text, f"{name}: {first_words!r} is not in --help"
+
+
+def field_docstrings(command: type) -> list[str]:
+    """The docstring under each field of ``command`` and of the dataclasses it extends."""
+    docstrings = []
+    for cls in command.__mro__:
+        if not dataclasses.is_dataclass(cls):
+            continue
+        lines = inspect.getsource(cls).splitlines()
+        for line, following in itertools.pairwise(lines):
+            if re.match(r"    \w+: ", line) and following.strip().startswith('"""'):
+                docstrings.append(following.strip().strip('"'))
+    assert docstrings, f"{command.__name__} documents no field"
+    return docstrings
 
 
 def test_json_outputs_parse(trained_run):

@@ -13,16 +13,18 @@ A body is a benchmark name (see `list`) or the path of an MJCF file. Errors exit
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import sys
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Annotated
 
 import imageio.v3 as iio
 import numpy as np
+import tyro
 
-from swat_jax.cli import strict_json
+from swat_jax.cli import run_command, strict_json
 from swat_jax.morphology.encodings import (
     RELATION_NAMES,
     TRAVERSAL_NAMES,
@@ -35,7 +37,6 @@ from swat_jax.morphology.sets import SETS, EnvironmentSet
 from swat_jax.morphology.types import Morphology
 
 WRAP_WIDTH = 100
-ERROR_STATUS = 2
 
 
 def limb_depths(parents: Sequence[int]) -> list[int]:
@@ -164,74 +165,74 @@ def write_picture(body: str, output: Path, width: int, height: int) -> None:
     iio.imwrite(output, render_initial_pose(body, width, height), extension=".png")
 
 
-def _add_body_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "body", metavar="NAME_OR_PATH", help="benchmark body name (see `list`) or MJCF file path"
-    )
+Body = tyro.conf.Positional[str]
+"""A benchmark body name (see ``list``) or the path of an MJCF file."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line parser with its three subcommands."""
-    parser = argparse.ArgumentParser(
-        prog="python -m swat_jax.morphology",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    commands.add_parser(
-        "list",
-        help="print the environment sets and the benchmark bodies",
-        description="Print every environment set (description, train and test bodies, most limbs in a body "
-        "of the set), then every benchmark body with its family and limb count.",
-    )
-    show = commands.add_parser(
-        "show",
-        help="print one body's limb tree, traversal positions and relation matrices",
-        description="Print one body's limb tree, the position of each limb in the pre-, in- and post-order "
-        "traversals, and the laplacian, spd and ppr relation matrices (3 decimals).",
-    )
-    _add_body_argument(show)
-    show.add_argument(
-        "--reference-inorder",
-        action="store_true",
-        help="use the reference code's in-order: a childless limb is listed after its next sibling's subtree",
-    )
-    show.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
-    render = commands.add_parser(
-        "render",
-        help="write a PNG picture of one body in its initial pose",
-        description="Render one body in its initial pose (qpos0), seen from the side, to a PNG file. "
-        "Rendering is off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl).",
-    )
-    _add_body_argument(render)
-    render.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
-    render.add_argument("--width", type=int, default=640, help="image width in pixels (default 640)")
-    render.add_argument("--height", type=int, default=480, help="image height in pixels (default 480)")
-    return parser
+@dataclasses.dataclass(frozen=True)
+class ListCommand:
+    """Print every environment set (description, train and test bodies, most limbs in a body of the set),
+    then every benchmark body with its family and limb count."""
+
+    def text(self) -> str:
+        return list_text()
 
 
-def run(args: argparse.Namespace) -> None:
-    """Carry out one parsed command, printing to stdout."""
-    if args.command == "list":
-        print(list_text())
-    elif args.command == "show" and args.json:
-        print(strict_json(show_json(load(args.body), reference_inorder=args.reference_inorder)))
-    elif args.command == "show":
-        print(show_text(load(args.body), reference_inorder=args.reference_inorder))
-    else:
-        write_picture(args.body, args.output, args.width, args.height)
-        print(f"wrote {args.output} ({args.width} x {args.height})")
+@dataclasses.dataclass(frozen=True)
+class ShowCommand:
+    """Print one body's limb tree, the position of each limb in the pre-, in- and post-order traversals,
+    and the laplacian, spd and ppr relation matrices (3 decimals)."""
+
+    body: Body
+    """Benchmark body name (see `list`) or MJCF file path."""
+    reference_inorder: bool = False
+    """Use the original code's in-order: a childless limb is listed after its next sibling's subtree."""
+    json: bool = False
+    """Print one JSON object instead of tables."""
+
+    def text(self) -> str:
+        morphology = load(self.body)
+        if self.json:
+            return strict_json(show_json(morphology, reference_inorder=self.reference_inorder))
+        return show_text(morphology, reference_inorder=self.reference_inorder)
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderCommand:
+    """Render one body in its initial pose (qpos0), seen from the side, to a PNG file. Rendering is
+    off-screen; MUJOCO_GL picks the OpenGL backend (egl, osmesa or glfw; default egl)."""
+
+    body: Body
+    """Benchmark body name (see `list`) or MJCF file path."""
+    output: Annotated[Path, tyro.conf.arg(aliases=("-o",))]
+    """PNG file to write."""
+    width: int = 640
+    """Image width in pixels."""
+    height: int = 480
+    """Image height in pixels."""
+
+    def text(self) -> str:
+        write_picture(self.body, self.output, self.width, self.height)
+        return f"wrote {self.output} ({self.width} x {self.height})"
+
+
+MorphologyCommand = (
+    Annotated[ListCommand, tyro.conf.subcommand("list")]
+    | Annotated[ShowCommand, tyro.conf.subcommand("show")]
+    | Annotated[RenderCommand, tyro.conf.subcommand("render")]
+)
+"""``python -m swat_jax.morphology list|show|render``."""
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (2 for a bad body, set, size or rendering failure)."""
-    args = build_parser().parse_args(argv)
-    try:
-        run(args)
-    except (ValueError, RenderingUnavailable, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return ERROR_STATUS
-    return 0
+    return run_command(
+        MorphologyCommand,
+        lambda command: command.text(),
+        argv,
+        (ValueError, RenderingUnavailable, OSError),
+        prog="python -m swat_jax.morphology",
+    )
 
 
 if __name__ == "__main__":

@@ -12,11 +12,12 @@ as XML, so the variants keep the source's degrees, ``fromto`` capsules and defau
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import tyro
 
 from swat_jax.morphology.paths import MORPHOLOGY_DIR
 
@@ -166,24 +167,31 @@ def generate(directory: Path = MORPHOLOGY_DIR) -> dict[Path, str]:
     return {directory / f"{name}.xml": derive(name, v, sources[v.source]) for name, v in VARIANTS.items()}
 
 
+@dataclasses.dataclass(frozen=True)
+class GenerateCommand:
+    """Write the benchmark's variant bodies (intact bodies with limbs removed) from each family's intact
+    body, or with --check only compare them."""
+
+    check: bool = False
+    """Only compare; exit 1 if a file differs."""
+    dir: Path = MORPHOLOGY_DIR
+    """Folder of the intact bodies."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--check", action="store_true", help="only compare; exit 1 if a file differs")
-    parser.add_argument("--dir", type=Path, default=MORPHOLOGY_DIR, help="folder of the intact bodies")
-    args = parser.parse_args(argv)
+    """Write (or check) the variant files; returns 1 when --check finds a stale one."""
+    command = tyro.cli(GenerateCommand, args=argv, prog="python -m swat_jax.morphology.generate")
     stale = []
-    for path, text in generate(args.dir).items():
+    for path, text in generate(command.dir).items():
         if not path.exists() or path.read_text() != text:
             stale.append(path.name)
-            if not args.check:
+            if not command.check:
                 path.write_text(text)
-    verb = "differ from the generator" if args.check else "written"
+    verb = "differ from the generator" if command.check else "written"
     print(
         f"{len(stale)} of {len(VARIANTS)} variant files {verb}" + (f": {', '.join(stale)}" if stale else "")
     )
-    return 1 if args.check and stale else 0
+    return 1 if command.check and stale else 0
 
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ from swat_jax.morphology.paths import MORPHOLOGY_DIR
 from swat_jax.morphology.types import FamilySpec, Morphology
 
 FAMILY_TEXT = "swat_family"
+SOURCE_TEXT = "swat_source"
+"""Optional ``<text>``: the benchmark body whose per-body constants a file keeps (a variant's nominal body)."""
 ROOT_JOINTS = (
     (mujoco.mjtJoint.mjJNT_SLIDE, (1.0, 0.0, 0.0)),
     (mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 0.0, 1.0)),
@@ -226,13 +228,20 @@ def _is_finite(text: str) -> bool:
         return True  # not a number at all: MuJoCo's own parser reports it
 
 
-def _family_name(path: Path, model: mujoco.MjModel) -> str:
-    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, FAMILY_TEXT)
-    declare = f'<custom><text name="{FAMILY_TEXT}" data="FAMILY"/></custom> with FAMILY one of {", ".join(FAMILIES)}'
+def _custom_text(model: mujoco.MjModel, name: str) -> str | None:
+    """The data of the file's ``<custom><text name=NAME>``, None without one."""
+    text = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, name)
     if text < 0:
-        raise MorphologyError(path, f"no family declared; add {declare}")
+        return None
     start, size = model.text_adr[text], model.text_size[text]
-    family = bytes(model.text_data[start : start + size - 1]).decode()
+    return bytes(model.text_data[start : start + size - 1]).decode()
+
+
+def _family_name(path: Path, model: mujoco.MjModel) -> str:
+    family = _custom_text(model, FAMILY_TEXT)
+    declare = f'<custom><text name="{FAMILY_TEXT}" data="FAMILY"/></custom> with FAMILY one of {", ".join(FAMILIES)}'
+    if family is None:
+        raise MorphologyError(path, f"no family declared; add {declare}")
     if family not in FAMILIES:
         raise MorphologyError(
             path, f"<text name={FAMILY_TEXT!r}> names unknown family {family!r}; use {declare}"
@@ -372,7 +381,7 @@ def load(name_or_path: str | Path, *, max_limbs: int | None = None) -> Morpholog
             path, f"{len(limbs)} limbs, more than the maximum of {max_limbs}; raise max_limbs or remove limbs"
         )
     joints = [_limb_joint(path, model, body) for body in limbs[1:]]
-    spec = family_spec(family, path.stem)
+    spec = family_spec(family, _custom_text(model, SOURCE_TEXT) or path.stem)
     names = tuple(_name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in limbs)
     return Morphology(
         name=path.stem,

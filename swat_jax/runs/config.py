@@ -52,7 +52,8 @@ NETWORK_SIZES = ("width", "heads", "layers", "feedforward", "max_traversal_posit
 PRESET_NAMES: tuple[str, ...] = typing.get_args(Preset)
 
 
-def _require_positive(flag: str, value: Any) -> None:
+def require_positive(flag: str, value: Any) -> None:
+    """ConfigError naming ``flag`` unless ``value`` is a whole number of at least 1 (a bool is not)."""
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")
 
@@ -165,9 +166,9 @@ class TrainConfig:
         if self.preset not in PRESET_NAMES:
             raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
         for name in ("steps", "seeds", "copies", "log_interval", "checkpoint_interval", "keep_checkpoints"):
-            _require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
+            require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
         for name in ("chunk", "updates", "capacity"):
-            _require_positive(f"--iteration.{name}", getattr(self.iteration, name))
+            require_positive(f"--iteration.{name}", getattr(self.iteration, name))
         if self.iteration.schedule not in SCHEDULES:
             raise ConfigError(
                 f"--iteration.schedule must be one of {', '.join(SCHEDULES)}, got {self.iteration.schedule!r}"
@@ -177,12 +178,12 @@ class TrainConfig:
                 "--iteration.rounds sets each body's updates from the counted steps, which only the original "
                 "schedule takes; add --iteration.schedule original or --iteration.no-rounds"
             )
-        _require_positive("--td3.batch-size", self.td3.batch_size)
-        _require_positive("--td3.policy-delay", self.td3.policy_delay)
-        _require_positive("--eval-episodes", self.eval_episodes)
-        _require_positive("--limb-buckets", self.limb_buckets)
+        require_positive("--td3.batch-size", self.td3.batch_size)
+        require_positive("--td3.policy-delay", self.td3.policy_delay)
+        require_positive("--eval-episodes", self.eval_episodes)
+        require_positive("--limb-buckets", self.limb_buckets)
         if self.smp_hidden is not None:
-            _require_positive("--smp-hidden", self.smp_hidden)
+            require_positive("--smp-hidden", self.smp_hidden)
         if self.eval_interval < 0:
             raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
         if self.iteration.random_steps < 0:

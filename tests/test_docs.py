@@ -1,0 +1,71 @@
+"""The Python blocks of docs/python.md run as written (the training block at a tiny size)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "python.md"
+SNIPPET = re.compile(r"<!-- snippet: (\w+) -->\n```python\n(.*?)```", re.DOTALL)
+
+TINY_TRAINING = {
+    'PRESETS["fast"]': (
+        'dataclasses.replace(PRESETS["fast"], copies=1, td3=TD3Config(batch_size=8), '
+        'iteration=IterationConfig(chunk=16, updates=2, schedule="all_tasks", random_steps=16, capacity=256))'
+    ),
+    "steps=20_000": "steps=1008",
+    "width=32, layers=1, feedforward=64": "width=16, layers=1, feedforward=32, max_traversal_positions=3",
+}
+"""What the test changes in the training block so that it runs in seconds: a smaller network and one copy
+of hopper_3 (a folder that holds it alone; the ``env=`` replacement is added with the folder) for 63
+iterations, so that its first episode reaches the 1000-step time limit and the curve has a point."""
+
+
+def snippets() -> dict[str, str]:
+    """The page's marked Python blocks by name."""
+    return dict(SNIPPET.findall(PAGE.read_text()))
+
+
+def shrunk(code: str, replacements: dict[str, str]) -> str:
+    """``code`` with each replacement made; fails if the page no longer holds a replaced text."""
+    for old, new in replacements.items():
+        assert old in code, f"docs/python.md's block no longer contains {old!r}; update tests/test_docs.py"
+        code = code.replace(old, new)
+    return code
+
+
+def test_the_page_marks_a_block_per_command():
+    assert list(snippets()) == ["train", "eval", "export", "plot", "bodies"]
+
+
+def test_every_block_runs_in_order(tmp_path, monkeypatch, hopper_folder, capsys):
+    monkeypatch.chdir(tmp_path)
+    blocks = snippets()
+    training = shrunk(blocks["train"], {**TINY_TRAINING, 'env="hopper"': f'env="{hopper_folder}"'})
+    namespace: dict = {}
+    exec(
+        "from swat_jax.td3 import TD3Config\nfrom swat_jax.td3.iteration import IterationConfig\n" + training,
+        namespace,
+    )
+    assert namespace["result"].env_steps == 1008 and not namespace["result"].interrupted
+    for name in ("eval", "export", "plot", "bodies"):
+        namespace = {}
+        exec(blocks[name], namespace)
+        if name == "eval":
+            [body] = namespace["run"].results
+            assert body.body == "hopper_3" and body.returns.shape == (1, 4)
+        if name == "export":
+            actions = np.asarray(namespace["actions"])
+            assert actions.shape == (8, 3) and np.all(np.abs(actions) <= 1)
+    for written in (
+        "curves.png",
+        "curves.csv",
+        "embeddings.png",
+        "relations.png",
+        "hopper.mp4",
+        "policy.npz",
+    ):
+        assert (tmp_path / written).stat().st_size > 0, written
+    assert "('torso', 'thigh', 'foot') (-1, 0, 1)" in capsys.readouterr().out
