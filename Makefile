@@ -19,7 +19,7 @@ test:  ## run the whole test suite (what CI runs)
 FAST_TESTS ?= tests/test_encodings.py tests/test_morphologies.py tests/test_mjcf_errors.py tests/test_morphology_cli.py \
 	tests/test_observation.py tests/test_replay.py tests/test_limb_buckets.py tests/test_td3_probes.py \
 	tests/test_update_schedule.py tests/test_compilation_cache.py tests/test_worker_groups.py \
-	tests/test_subprocesses.py tests/test_offline_wheels.py
+	tests/test_subprocesses.py tests/test_offline_wheels.py tests/test_variants.py
 
 test-fast:  ## a subset for the development loop (a few minutes on 2 cores): no MJX training runs, no slow tests
 	$(PYTHON) -m pytest -q -n 2 --dist loadgroup -m "not slow" $(FAST_TESTS)

@@ -25,6 +25,7 @@ import tyro
 from swat_jax.cli import run_command, strict_json
 from swat_jax.compilation_cache import compile_cached, enable_caches
 from swat_jax.morphology import MorphologyError, get_set
+from swat_jax.morphology.variants import Variation
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import Split, require_positive
 from swat_jax.runs.experiment import make_env, program_recipe
@@ -79,11 +80,14 @@ def evaluate(
     seed: int = 0,
     record: bool = False,
     seed_indices: Sequence[int] | None = None,
+    variants: int = 0,
+    variation: Variation | None = None,
 ) -> list[BodyEvaluation]:
     """Run ``episodes`` deterministic episodes of every body (names or MJCF paths) under each chosen seed's
     actor (``seed_indices`` into the run's seeds; default every seed), all in one program
     (:func:`swat_jax.td3.evaluation.make_evaluation`). Every seed meets the same initial states, drawn
-    from ``seed``.
+    from ``seed``. With ``variants`` K, episode j of a body runs its variant j mod K drawn by ``variation``
+    (:mod:`swat_jax.morphology.variants`; held-out variants: another seed than training's).
 
     Raises:
         MorphologyError: a body cannot be loaded.
@@ -92,7 +96,13 @@ def evaluate(
     """
     tasks = policy.task_set(bodies)
     indices = tuple(range(len(policy.seeds)) if seed_indices is None else seed_indices)
-    env = make_env(policy.config, tasks.bodies, episodes, len(indices))
+    if variants > episodes:
+        raise ValueError(
+            f"--variants {variants} is more than --episodes {episodes}: each episode runs one variant"
+        )
+    env = make_env(
+        policy.config, tasks.bodies, episodes, len(indices), variants=variants, variation=variation
+    )
     params = jax.tree_util.tree_map(
         lambda *leaves: jnp.stack(leaves), *(policy.seed_params(index) for index in indices)
     )
@@ -190,9 +200,18 @@ class EvalOptions:
     summarised as the mean ± standard error over seeds."""
     video: Path | None = None
     """Also write VIDEO/<body>.mp4 of each body's first episode (a folder)."""
+    variants: int = 0
+    """Evaluate on K variants of each body (episode j runs variant j mod K; at most --episodes); 0: the bodies themselves."""
+    variation: float = 0.2
+    """With --variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]."""
+    variant_seed: int = 1
+    """With --variants: seed of the draw; a training run with --variants drew its own with --variant-seed (default 0), so the default 1 gives held-out variants."""
 
     def __post_init__(self) -> None:
         require_positive("--episodes", self.episodes)
+        Variation(self.variation, self.variant_seed)
+        if self.variants < 0:
+            raise ValueError(f"--variants must be 0 (off) or more, got {self.variants}")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -215,6 +234,8 @@ class EvalCommand(EvalOptions):
             raise ValueError("give at least one RUN_DIR (a folder written by python -m swat_jax.train)")
         if self.json and self.markdown:
             raise ValueError("--json and --markdown are two formats of one output; choose one")
+        if self.video and self.variants:
+            raise ValueError("--video draws the bodies themselves; evaluate --variants without --video")
         if self.video and len(self.run_dirs) > 1:
             raise ValueError("--video takes one RUN_DIR; evaluate the runs one at a time to record them")
 
@@ -250,6 +271,8 @@ def evaluate_run(run_dir: str | Path, options: EvalOptions = EvalOptions()) -> R
         seed=options.seed,
         record=options.video is not None,
         seed_indices=None if options.seed_index is None else [options.seed_index],
+        variants=options.variants,
+        variation=Variation(options.variation, options.variant_seed),
     )
     if options.video is not None:
         from swat_jax.render import render_rollout
@@ -299,6 +322,11 @@ def json_run(run: RunEvaluation, options: EvalOptions) -> dict[str, Any]:
         "episodes": options.episodes,
         "seed": options.seed,
         "seeds": list(run.results[0].seeds),
+        "variants": (
+            {"count": options.variants, "variation": options.variation, "seed": options.variant_seed}
+            if options.variants
+            else None
+        ),
         "bodies": json_report(run.results),
     }
 

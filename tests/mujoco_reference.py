@@ -90,3 +90,50 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
         episode_length=states.episode_length,
         c_final_observation=numpy_observation(env.morphology, model, data),
     )
+
+
+def mjx_and_c_variant_rollouts(
+    name: str, count: int, steps: int, folder: str, seed: int = 0
+) -> dict[str, float]:
+    """``count`` variants of body ``name`` (written to ``folder``, spread 0.3) stepped together by one
+    vmapped MJX environment, each against plain ``mujoco.mj_step`` on its own MJCF file, under the same
+    random actions from the MJX reset state. Returns the max abs differences over variants and steps of
+    qpos and qvel, and of the final observation against the NumPy one of each variant's MuJoCo C state."""
+    import jax
+
+    from swat_jax.envs import BodyEnv
+    from swat_jax.morphology.variants import Variation, write_variants
+
+    variants = write_variants(name, count, Variation(0.3, seed), folder)
+    env = BodyEnv(name, variants=variants)
+    actions = np.random.default_rng(seed).uniform(-1, 1, (steps, count, env.num_limbs))
+
+    def rollout(keys, table, actions):
+        start = jax.vmap(env.reset)(keys, table)
+
+        def step(state, action):
+            state = jax.vmap(env.step)(state, action)
+            return state, state
+
+        return start, jax.lax.scan(step, start, actions)[1]
+
+    keys = jax.random.split(jax.random.PRNGKey(seed), count)
+    start, states = jax.tree_util.tree_map(np.asarray, jax.jit(rollout)(keys, env.variant_table(), actions))
+    errors = dict(qpos=0.0, qvel=0.0, observation=0.0, spread=0.0)
+    for j, variant in enumerate(variants):
+        model = mujoco.MjModel.from_xml_path(str(variant.path))
+        data = mujoco.MjData(model)
+        data.qpos[:], data.qvel[:] = start.data.qpos[j], start.data.qvel[j]
+        for t in range(steps):
+            data.ctrl[:] = np.clip(actions[t, j][env.motor_limbs], -1, 1)
+            for _ in range(variant.frame_skip):
+                mujoco.mj_step(model, data)
+            errors["qpos"] = max(errors["qpos"], float(np.abs(data.qpos - states.data.qpos[t, j]).max()))
+            errors["qvel"] = max(errors["qvel"], float(np.abs(data.qvel - states.data.qvel[t, j]).max()))
+        mujoco.mj_forward(model, data)
+        observed = numpy_observation(variant, model, data)
+        errors["observation"] = max(
+            errors["observation"], float(np.abs(observed - states.observation[-1, j]).max())
+        )
+    errors["spread"] = float(np.abs(states.data.qpos[-1] - states.data.qpos[-1, :1]).max())
+    return errors

@@ -3,9 +3,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import inspect
+import io
 import itertools
 import json
 import re
@@ -24,6 +26,7 @@ HELP_COMMANDS = (
     ("swat_jax.morphology", "list"),
     ("swat_jax.morphology", "show"),
     ("swat_jax.morphology", "render"),
+    ("swat_jax.morphology", "variants"),
     ("swat_jax.plot",),
     ("swat_jax.plot", "curves"),
     ("swat_jax.plot", "embeddings"),
@@ -36,6 +39,7 @@ COMMANDS = {
     ("swat_jax.render",): "swat_jax.render:RenderCommand",
     ("swat_jax.morphology", "show"): "swat_jax.morphology.__main__:ShowCommand",
     ("swat_jax.morphology", "render"): "swat_jax.morphology.__main__:RenderCommand",
+    ("swat_jax.morphology", "variants"): "swat_jax.morphology.__main__:VariantsCommand",
     ("swat_jax.plot", "curves"): "swat_jax.plot:CurvesCommand",
     ("swat_jax.plot", "embeddings"): "swat_jax.plot:EmbeddingsCommand",
     ("swat_jax.plot", "relations"): "swat_jax.plot:RelationsCommand",
@@ -60,9 +64,18 @@ def finished(process: subprocess.Popen) -> str:
 
 @pytest.fixture(scope="module")
 def help_outputs() -> dict[tuple[str, ...], str]:
-    """Every command's --help, run side by side."""
-    processes = {argv: command(*argv, "--help") for argv in HELP_COMMANDS}
-    return {argv: finished(process) for argv, process in processes.items()}
+    """Every command's --help: each module's in a fresh process (side by side), its subcommands' in this
+    one (the module is the same, so are its imports)."""
+    processes = {argv: command(*argv, "--help") for argv in HELP_COMMANDS if len(argv) == 1}
+    outputs = {argv: finished(process) for argv, process in processes.items()}
+    for module, subcommand in (argv for argv in HELP_COMMANDS if len(argv) == 2):
+        entry = importlib.import_module(f"{module}.__main__" if module == "swat_jax.morphology" else module)
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed), pytest.raises(SystemExit) as exit_info:
+            entry.main([subcommand, "--help"])
+        assert exit_info.value.code == 0
+        outputs[(module, subcommand)] = printed.getvalue()
+    return outputs
 
 
 @pytest.mark.parametrize("argv", HELP_COMMANDS, ids=" ".join)

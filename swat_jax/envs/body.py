@@ -19,6 +19,9 @@ All methods are pure functions of their arguments (the class only holds constant
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -26,7 +29,7 @@ import numpy as np
 from flax import struct
 
 from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
-from swat_jax.envs.physics import Implementation, Simulator
+from swat_jax.envs.physics import Implementation, ModelFields, Simulator, differing_fields
 from swat_jax.envs.quiet_mjx import mjx
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
@@ -35,6 +38,18 @@ EXPLOSION_SPEED = 1e3
 """A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
 BOUNDED_STATE_LIMIT = 100.0
 """abs(qpos[2:]) and abs(qvel) stay below this for bodies with ``Termination.bounded_state``."""
+
+
+@struct.dataclass
+class Variant:
+    """What one variant of a body (:mod:`swat_jax.morphology.variants`) changes: inputs of the step, never
+    constants of its program, so one program steps any number of variants. With leading axes when stacked
+    or vmapped (:meth:`BodyEnv.variant_table` has [k])."""
+
+    model: ModelFields
+    """The ``mjx.Model`` leaves in which the variants differ, by key path (``physics.differing_fields``)."""
+    joint_range: jax.Array
+    """[n, 2] float32 joint ranges in degrees (the observation scales joint angles by them); 0 for the torso."""
 
 
 @struct.dataclass
@@ -58,6 +73,8 @@ class EnvState:
     """[] float32 sum of rewards since reset."""
     episode_length: jax.Array
     """[] int32 steps since reset."""
+    variant: Variant | None = None
+    """The body's variant this episode runs (kept across resets); None: the nominal body."""
 
     @property
     def done(self) -> jax.Array:
@@ -77,6 +94,14 @@ class BodyEnv:
             (docs/fidelity.md, row 33; JAX physics only).
         physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
         worlds: "warp" only: the most copies one vmapped call steps, all vmap axes together.
+        variants: variants of the body (:mod:`swat_jax.morphology.variants`; loaded bodies or MJCF paths),
+            the same tree of limbs with other numbers. :meth:`variant_table` stacks what they change; a
+            state started with one of its rows (``reset(rng, variant)``) steps that variant, through the
+            same program for every variant (physics="jax" only); a state started without one runs the
+            first variant.
+
+    Raises:
+        ValueError: a variant is not the same tree of limbs, or variants with physics="warp".
     """
 
     def __init__(
@@ -87,6 +112,7 @@ class BodyEnv:
         stale_kinematics: bool = False,
         physics: Implementation = "jax",
         worlds: int = 1,
+        variants: Sequence[Morphology | str | Path] = (),
     ):
         if stale_kinematics and physics != "jax":
             raise ValueError(
@@ -95,10 +121,15 @@ class BodyEnv:
         self.morphology = morphology if isinstance(morphology, Morphology) else load(morphology)
         self.torso_relative_x = torso_relative_x
         self.stale_kinematics = stale_kinematics
-        self.mj_model: mujoco.MjModel = compile_model(self.morphology)
+        self.variants = tuple(v if isinstance(v, Morphology) else load(v) for v in variants)
+        self._check_variants(physics)
+        models = [compile_model(variant) for variant in self.variants] or [compile_model(self.morphology)]
+        self.mj_model: mujoco.MjModel = models[0]
+        """The compiled model whose numbers are the program's constants: the body's, or its first variant's."""
         self.simulator = Simulator(self.mj_model, physics, worlds)
         self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
         self.motor_limbs = _motor_limbs(self.morphology, self.mj_model.nu)
+        self._variant_table = self._stack_variants(models) if self.variants else None
         self.site_ids = np.array(
             [
                 mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, name)
@@ -116,19 +147,52 @@ class BodyEnv:
         """F, the number of values per limb."""
         return self.layout.features
 
-    def reset(self, rng: jax.Array) -> EnvState:
-        """Start an episode at the initial pose plus the family's reset noise."""
-        return self.start(self.kinematics(self.initial_data(rng)))
+    def variant_table(self) -> Variant:
+        """Every variant's row, stacked: ``model`` leaves and ``joint_range`` with a leading [k] axis.
+
+        Raises:
+            ValueError: the environment was built without variants.
+        """
+        if self._variant_table is None:
+            raise ValueError(f"{self.morphology.name}: this environment has no variants; pass variants=...")
+        return self._variant_table
+
+    def _check_variants(self, physics: Implementation) -> None:
+        if self.variants and physics != "jax":
+            raise ValueError("variants of a body run on physics='jax' (their model is an input of the step)")
+        nominal = self.morphology
+        for variant in self.variants:
+            tree = (variant.limb_names, variant.parents, variant.limb_motors, variant.joint_names)
+            if tree != (nominal.limb_names, nominal.parents, nominal.limb_motors, nominal.joint_names):
+                raise ValueError(
+                    f"{variant.path}: not a variant of {nominal.name}: its limbs, parents, joints or motors "
+                    "differ (a variant changes numbers only; another tree is another body)"
+                )
+
+    def _stack_variants(self, models: list[mujoco.MjModel]) -> Variant:
+        """The variants' rows: the model leaves in which they differ (the first variant's model holds the
+        rest as constants) and their joint ranges."""
+        return Variant(
+            model={path: jnp.asarray(values) for path, values in differing_fields(models).items()},
+            joint_range=jnp.asarray(np.stack([variant.joint_range_array() for variant in self.variants])),
+        )
+
+    def reset(self, rng: jax.Array, variant: Variant | None = None) -> EnvState:
+        """Start an episode at the initial pose plus the family's reset noise (of ``variant``: one row of
+        :meth:`variant_table`; None: the nominal body)."""
+        return self.start(self.kinematics(self.initial_data(rng, variant), variant), variant)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply ``action`` [n] (one value per limb, the torso's ignored) for ``frame_skip`` physics steps."""
-        return self.finish_step(state, self.step_kinematics(self.simulate(state.data, action)))
+        data = self.simulate(state.data, action, state.variant)
+        return self.finish_step(state, self.step_kinematics(data, state.variant))
 
-    def initial_data(self, rng: jax.Array) -> mjx.Data:
+    def initial_data(self, rng: jax.Array, variant: Variant | None = None) -> mjx.Data:
         """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
         noise = self.morphology.family.reset_noise
         position_key, velocity_key = jax.random.split(rng)
-        qpos = self.mj_model.qpos0 + jax.random.uniform(
+        qpos0 = self.simulator.model_with(_fields(variant)).qpos0
+        qpos = qpos0 + jax.random.uniform(
             position_key, (self.mj_model.nq,), minval=-noise.qpos_uniform, maxval=noise.qpos_uniform
         )
         if noise.qvel_gaussian:
@@ -141,32 +205,35 @@ class BodyEnv:
         dtype = initial.qpos.dtype
         return initial.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
 
-    def simulate(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
+    def simulate(self, data: mjx.Data, action: jax.Array, variant: Variant | None = None) -> mjx.Data:
         """``frame_skip`` physics steps under ``action`` [n]; derived quantities not yet computed."""
         data = data.replace(ctrl=jnp.clip(action[self.motor_limbs], -1.0, 1.0))
-        return self.simulator.advance(data, self.morphology.frame_skip)
+        return self.simulator.advance(data, self.morphology.frame_skip, _fields(variant))
 
-    def kinematics(self, data: mjx.Data) -> mjx.Data:
+    def kinematics(self, data: mjx.Data, variant: Variant | None = None) -> mjx.Data:
         """Positions, orientations, sites and frame velocities computed from ``data``'s qpos and qvel."""
-        return self.simulator.derive(data)
+        return self.simulator.derive(data, _fields(variant))
 
-    def step_kinematics(self, data: mjx.Data) -> mjx.Data:
+    def step_kinematics(self, data: mjx.Data, variant: Variant | None = None) -> mjx.Data:
         """The kinematics a step's observation and termination read, for ``data`` just simulated:
         :meth:`kinematics`, or with ``stale_kinematics`` the positions, orientations and sites the last
         physics step left, with frame velocities from them and the new qvel (the original code's reads)."""
-        return self.simulator.velocities(data) if self.stale_kinematics else self.kinematics(data)
+        if self.stale_kinematics:
+            return self.simulator.velocities(data, _fields(variant))
+        return self.kinematics(data, variant)
 
-    def start(self, data: mjx.Data) -> EnvState:
-        """The state of a new episode at ``data`` (kinematics computed)."""
+    def start(self, data: mjx.Data, variant: Variant | None = None) -> EnvState:
+        """The state of a new episode at ``data`` (kinematics computed) of ``variant``."""
         zero = jnp.zeros((), jnp.float32)
         return EnvState(
             data=data,
-            observation=self._observe(data),
+            observation=self._observe(data, variant),
             reward=zero,
             terminated=jnp.zeros((), bool),
             truncated=jnp.zeros((), bool),
             episode_return=zero,
             episode_length=jnp.zeros((), jnp.int32),
+            variant=variant,
         )
 
     def finish_step(self, state: EnvState, data: mjx.Data) -> EnvState:
@@ -179,19 +246,21 @@ class BodyEnv:
         length = state.episode_length + 1
         return EnvState(
             data=data,
-            observation=jnp.where(unstable, 0.0, self._observe(data)),
+            observation=jnp.where(unstable, 0.0, self._observe(data, state.variant)),
             reward=reward,
             terminated=terminated,
             truncated=~terminated & (length >= self.morphology.family.max_episode_steps),
             episode_return=state.episode_return + reward,
             episode_length=length,
+            variant=state.variant,
         )
 
-    def _observe(self, data: mjx.Data) -> jax.Array:
+    def _observe(self, data: mjx.Data, variant: Variant | None = None) -> jax.Array:
         """[n, F] float32 (whatever precision the simulation runs in)."""
         limbs = slice(1, self.num_limbs + 1)
+        layout = self.layout if variant is None else self.layout._replace(joint_range=variant.joint_range)
         return limb_observation(
-            self.layout,
+            layout,
             data.qpos,
             data.xpos[limbs],
             data.xquat[limbs],
@@ -225,6 +294,10 @@ class BodyEnv:
             minimum = np.array([z for _, z in termination.site_min_heights], np.float32)
             alive &= jnp.all(data.site_xpos[self.site_ids, 2] > minimum)
         return alive
+
+
+def _fields(variant: Variant | None) -> ModelFields | None:
+    return None if variant is None else variant.model
 
 
 def _unstable(data: mjx.Data) -> jax.Array:

@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from swat_jax.envs.body import BodyEnv, EnvState
+from swat_jax.envs.body import BodyEnv, EnvState, Variant
 from swat_jax.envs.physics import Implementation
 from swat_jax.morphology.mjcf import load
 from swat_jax.morphology.types import Morphology
@@ -114,6 +114,9 @@ class MultiTaskEnv:
             state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
             per call (a step derives the stepped and the fresh copies together).
         lock_step: run in the original code's lock-step rounds (module docstring), each run on its own.
+        variants: per body, its variants (:mod:`swat_jax.morphology.variants`; empty: the body itself):
+            copy j of a body runs its variant j mod (number of variants), in every run, through one
+            program per body whatever their number (:class:`~swat_jax.envs.body.BodyEnv`).
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -131,6 +134,7 @@ class MultiTaskEnv:
         physics: Implementation = "jax",
         runs: int = 1,
         lock_step: bool = False,
+        variants: Sequence[Sequence[Morphology | str]] = (),
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
@@ -140,6 +144,8 @@ class MultiTaskEnv:
         largest = max(morphologies, key=lambda body: body.num_limbs)
         if max_limbs is not None and max_limbs < largest.num_limbs:
             raise ValueError(f"{largest.name} has {largest.num_limbs} limbs, more than max_limbs={max_limbs}")
+        if variants and len(variants) != len(morphologies):
+            raise ValueError(f"variants: one sequence per body ({len(morphologies)}), got {len(variants)}")
         self.envs = tuple(
             BodyEnv(
                 body,
@@ -147,8 +153,9 @@ class MultiTaskEnv:
                 stale_kinematics=stale_kinematics,
                 physics=physics,
                 worlds=2 * copies * runs,
+                variants=body_variants,
             )
-            for body in morphologies
+            for body, body_variants in zip(morphologies, variants or [()] * len(morphologies), strict=True)
         )
         widths = {env.morphology.name: env.observation_features for env in self.envs}
         if len(set(widths.values())) > 1:
@@ -195,7 +202,11 @@ class MultiTaskEnv:
         rng, *keys = self._split(rng, runs)
         bodies = tuple(
             _unfolded(
-                jax.vmap(env.reset)(_folded(self._copy_keys(key, runs), runs, self.copies)), runs, self.copies
+                jax.vmap(env.reset)(
+                    _folded(self._copy_keys(key, runs), runs, self.copies), self._copy_variants(env, runs)
+                ),
+                runs,
+                self.copies,
             )
             for env, key in zip(self.envs, keys, strict=True)
         )
@@ -206,6 +217,13 @@ class MultiTaskEnv:
             episodes=EpisodeStats.zeros(self.num_bodies, runs),
             round_ended=jnp.zeros((*runs, self.num_bodies, self.copies), bool),
         )
+
+    def _copy_variants(self, env: BodyEnv, runs: tuple[int, ...]) -> Variant | None:
+        """[R x n, ...] the variant of every copy of every run (copy j: variant j mod k), or None."""
+        if not env.variants:
+            return None
+        rows = np.arange(self.copies * math.prod(runs)) % self.copies % len(env.variants)
+        return jax.tree_util.tree_map(lambda table: table[rows], env.variant_table())
 
     def step(self, state: MultiTaskState, action: jax.Array) -> tuple[MultiTaskState, StepResult]:
         """Apply ``action`` [*R, K, n, L] (padded limbs ignored) to every copy; reset finished copies (and,
@@ -338,18 +356,21 @@ def _step_and_restart(
     stepped copies only need their velocities).
     """
     copies = action.shape[0]
-    simulated = jax.vmap(env.simulate)(state.data, action)
-    initial = jax.vmap(env.initial_data)(keys)
+    variant = state.variant
+    simulated = jax.vmap(env.simulate)(state.data, action, variant)
+    initial = jax.vmap(env.initial_data)(keys, variant)
     if env.stale_kinematics:
-        simulated, initial = jax.vmap(env.step_kinematics)(simulated), jax.vmap(env.kinematics)(initial)
+        simulated = jax.vmap(env.step_kinematics)(simulated, variant)
+        initial = jax.vmap(env.kinematics)(initial, variant)
     else:
-        both = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), simulated, initial)
-        both = jax.vmap(env.kinematics)(both)
+        twice = lambda a, b: jnp.concatenate([a, b])  # noqa: E731
+        both = jax.tree_util.tree_map(twice, simulated, initial)
+        both = jax.vmap(env.kinematics)(both, jax.tree_util.tree_map(twice, variant, variant))
         simulated, initial = (
             jax.tree_util.tree_map(lambda x, s=s: x[s], both)
             for s in (slice(None, copies), slice(copies, None))
         )
-    return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial)
+    return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial, variant)
 
 
 def _where_done(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState:

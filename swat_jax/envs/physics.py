@@ -22,7 +22,7 @@ class returns hold empty placeholders there instead, and :meth:`Simulator.advanc
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Literal
 
 import jax
@@ -94,6 +94,51 @@ def physics_step(mj_model: mujoco.MjModel) -> Callable[[mjx.Model, mjx.Data], mj
     return rk4_step
 
 
+ModelFields = Mapping[str, jax.Array]
+"""Some leaves of an ``mjx.Model``, by their key path (``jax.tree_util.keystr``): one variant's values of
+the fields in which variants of a body differ (:func:`differing_fields`)."""
+
+
+def differing_fields(mj_models: Sequence[mujoco.MjModel]) -> dict[str, np.ndarray]:
+    """The ``mjx.Model`` leaves in which models of one topology differ, each stacked over the models:
+    ``{key path: [k, ...]}``. Leaves equal in every model are left out (they stay constants of a program).
+
+    Raises:
+        ValueError: the models differ in structure (another tree of bodies, joints or geoms), which only
+            separate programs can step.
+    """
+    models = [mjx.put_model(model) for model in mj_models]
+    if all(model.nhfield == 0 for model in mj_models):
+        # A static (trace-time NumPy) copy of geom_rbound that only height-field collisions read.
+        nominal = models[0]._impl.geom_rbound_hfield
+        models = [model.replace(_impl=model._impl.replace(geom_rbound_hfield=nominal)) for model in models]
+    flat = [jax.tree_util.tree_flatten_with_path(model) for model in models]
+    treedef = flat[0][1]
+    for index, (_, other) in enumerate(flat[1:], start=1):
+        if other != treedef:
+            raise ValueError(
+                f"model {index} has another structure than model 0 (its sizes, static options or the numbers "
+                "MJX reads while tracing differ); variants of one body share a topology, so stack only those"
+            )
+    stacked = {}
+    for position, (path, _) in enumerate(flat[0][0]):
+        values = [np.asarray(leaves[position][1]) for leaves, _ in flat]
+        if any(
+            value.shape != values[0].shape or not np.array_equal(value, values[0]) for value in values[1:]
+        ):
+            stacked[jax.tree_util.keystr(path)] = np.stack(values)
+    return stacked
+
+
+def with_fields(model: mjx.Model, fields: ModelFields) -> mjx.Model:
+    """``model`` with the leaves named in ``fields`` replaced (one variant's values)."""
+    if not fields:
+        return model
+    return jax.tree_util.tree_map_with_path(
+        lambda path, leaf: fields.get(jax.tree_util.keystr(path), leaf), model
+    )
+
+
 class Simulator:
     """One MuJoCo model on MJX: device model, initial state and the advance / derive functions.
 
@@ -134,25 +179,36 @@ class Simulator:
         self._buffers = {name: getattr(data._impl, name) for name in _shared_warp_buffers(data)}
         self.initial = self._detach(data)
 
-    def advance(self, data: mjx.Data, steps: int) -> mjx.Data:
-        """``steps`` physics steps from ``data`` (its ctrl applied); derived quantities not recomputed."""
-        data = jax.lax.fori_loop(0, steps, lambda _, d: self._step(self.model, d), self._attach(data))
+    def advance(self, data: mjx.Data, steps: int, fields: ModelFields | None = None) -> mjx.Data:
+        """``steps`` physics steps from ``data`` (its ctrl applied); derived quantities not recomputed.
+        ``fields``: a variant's model fields (:func:`with_fields`), inputs of the program, not constants."""
+        model = self.model_with(fields)
+        data = jax.lax.fori_loop(0, steps, lambda _, d: self._step(model, d), self._attach(data))
         return self._detach(data)
 
-    def derive(self, data: mjx.Data) -> mjx.Data:
+    def derive(self, data: mjx.Data, fields: ModelFields | None = None) -> mjx.Data:
         """Positions, orientations, sites and frame velocities (``cvel``) computed from qpos and qvel.
 
         Warp has no ``com_vel`` of its own in mujoco-mjx 3.17: there a whole ``forward`` computes them.
         """
+        model = self.model_with(fields)
         if self.implementation == "jax":
-            return mjx.com_vel(self.model, mjx.com_pos(self.model, mjx.kinematics(self.model, data)))
-        return self._detach(mjx.forward(self.model, self._attach(data)))
+            return mjx.com_vel(model, mjx.com_pos(model, mjx.kinematics(model, data)))
+        return self._detach(mjx.forward(model, self._attach(data)))
 
-    def velocities(self, data: mjx.Data) -> mjx.Data:
+    def velocities(self, data: mjx.Data, fields: ModelFields | None = None) -> mjx.Data:
         """Frame velocities (``cvel``) of ``data``'s qvel at the positions its derived fields hold (JAX only):
         after :meth:`advance`, those the last physics step left, i.e. the Jacobians of that step's last
         ``forward`` (the previous state for Euler, :func:`rk4_step`'s last stage) times the new qvel."""
-        return mjx.com_vel(self.model, data)
+        return mjx.com_vel(self.model_with(fields), data)
+
+    def model_with(self, fields: ModelFields | None) -> mjx.Model:
+        """The device model, with a variant's ``fields`` in place of the nominal values (JAX only)."""
+        if fields and self.implementation != "jax":
+            raise ValueError(
+                "variants of a body run on physics='jax'; MuJoCo Warp's model is not an input here"
+            )
+        return with_fields(self.model, fields or {})
 
     def _attach(self, data: mjx.Data) -> mjx.Data:
         """``data`` with the shared Warp buffers in place of its placeholders (unbatched under vmap)."""

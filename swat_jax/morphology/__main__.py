@@ -7,6 +7,8 @@
           --json prints the same as one JSON object
   render  a PNG picture of one body in its initial pose, seen from the side (headless rendering uses
           MUJOCO_GL, default egl)
+  variants  variants of one body (its limbs' physical quantities scaled by drawn factors) as MJCF files,
+          and a picture of them side by side
 
 A body is a benchmark name (see `list`) or the path of an MJCF file. Errors exit with status 2.
 """
@@ -35,8 +37,11 @@ from swat_jax.morphology.mjcf import benchmark_names, load
 from swat_jax.morphology.picture import RenderingUnavailable, render_initial_pose
 from swat_jax.morphology.sets import SETS, EnvironmentSet
 from swat_jax.morphology.types import Morphology
+from swat_jax.morphology.variants import Variation, write_variants
 
 WRAP_WIDTH = 100
+PICTURE_VARIANTS = 6
+"""Bodies in the variants' picture: the nominal one and the first variants."""
 
 
 def limb_depths(parents: Sequence[int]) -> list[int]:
@@ -216,12 +221,45 @@ class RenderCommand:
         return f"wrote {self.output} ({self.width} x {self.height})"
 
 
+@dataclasses.dataclass(frozen=True)
+class VariantsCommand:
+    """Draw variants of one body (the same limbs, their lengths, radii, masses, joint ranges, damping and
+    motor gears each scaled by a factor uniform in [1 - variation, 1 + variation]), write each as its own
+    MJCF file in --out, and a PNG of the nominal body and the first variants side by side."""
+
+    body: Body
+    """Benchmark body name (see `list`) or MJCF file path."""
+    out: Path
+    """Folder to write the variants' MJCF files (<body>__s<seed>v<index>.xml) and <body>_variants.png."""
+    count: Annotated[int, tyro.conf.arg(aliases=("-k",))] = 8
+    """Number of variants."""
+    variation: float = 0.2
+    """Spread of the factors, in [0, 1): each is uniform in [1 - variation, 1 + variation]."""
+    seed: int = 0
+    """Seed of the draw: the same seed writes the same variants."""
+    picture: bool = True
+    """Also write the picture (needs OpenGL, like render)."""
+
+    def text(self) -> str:
+        variants = write_variants(self.body, self.count, Variation(self.variation, self.seed), self.out)
+        lines = [f"wrote {len(variants)} variants of {load(self.body).name} in {self.out}"]
+        if self.picture:
+            shown = [load(self.body), *variants[: PICTURE_VARIANTS - 1]]
+            picture = self.out / f"{shown[0].name}_variants.png"
+            iio.imwrite(
+                picture, np.hstack([render_initial_pose(body, 320, 400) for body in shown]), extension=".png"
+            )
+            lines.append(f"wrote {picture}: the nominal body, then variants 0-{len(shown) - 2}")
+        return "\n".join(lines)
+
+
 MorphologyCommand = (
     Annotated[ListCommand, tyro.conf.subcommand("list")]
     | Annotated[ShowCommand, tyro.conf.subcommand("show")]
     | Annotated[RenderCommand, tyro.conf.subcommand("render")]
+    | Annotated[VariantsCommand, tyro.conf.subcommand("variants")]
 )
-"""``python -m swat_jax.morphology list|show|render``."""
+"""``python -m swat_jax.morphology list|show|render|variants``."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,7 +14,9 @@ drawn independently from ``U[1 - spread, 1 + spread]`` (:data:`QUANTITIES`):
   damping      the hinge's damping
   gear         the gear of the limb's motor
 
-The torso has no hinge and no motor, so its last three factors are drawn and unused (every body draws
+Longer or shorter limbs would start the body in the floor or in the air, so the torso is then raised or
+lowered (its ``pos`` and the height joint's ``ref`` together) until the body's lowest point is as high
+above the floor as the nominal body's. The torso has no hinge and no motor, so its last three factors are drawn and unused (every body draws
 the same ``[limbs, 6]`` table from a seed). MuJoCo's model editing (``mujoco.MjSpec``) applies the
 factors and compiles the variant, so masses, inertias and the bodies' frames are computed by MuJoCo from
 the edited geometry, never scaled as arrays. A variant's MJCF records the body it was drawn from
@@ -105,11 +107,41 @@ def _scale_joint_and_motor(spec: mujoco.MjSpec, body: mujoco.MjsBody, factors: n
                 actuator.gear[0] *= gear
 
 
+def lowest_point(model: mujoco.MjModel) -> float:
+    """Height of the lowest point of the body's geoms (the floor, attached to the world, excluded) at qpos0:
+    exact for capsules, cylinders and spheres, the bounding sphere for other shapes."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    lowest = np.inf
+    for geom in np.flatnonzero(model.geom_bodyid > 0):
+        radius, half = model.geom_size[geom, :2]
+        centre, axis = data.geom_xpos[geom], data.geom_xmat[geom].reshape(3, 3)[:, 2]
+        if model.geom_type[geom] in ELONGATED:
+            bottom = centre[2] - abs(axis[2]) * half - radius
+        elif model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_SPHERE:
+            bottom = centre[2] - radius
+        else:
+            bottom = centre[2] - model.geom_rbound[geom]
+        lowest = min(lowest, float(bottom))
+    return lowest
+
+
+def _keep_clearance(spec: mujoco.MjSpec, torso: str, clearance: float) -> None:
+    """Raise or lower the torso so that the lowest point of the edited body is ``clearance`` above the floor."""
+    shift = clearance - lowest_point(spec.compile())
+    body = spec.body(torso)
+    body.pos = np.asarray(body.pos, np.float64) + np.array([0.0, 0.0, shift])
+    for joint in body.joints:
+        if joint.type == mujoco.mjtJoint.mjJNT_SLIDE and np.allclose(joint.axis, (0.0, 0.0, 1.0)):
+            joint.ref += shift
+
+
 def variant_spec(morphology: Morphology, factors: np.ndarray) -> mujoco.MjSpec:
     """The MjSpec of ``morphology`` with the per-limb ``factors`` [num_limbs, 6] applied (module docstring).
 
     Raises:
-        ValueError: ``factors`` is not [num_limbs, 6] of positive finite numbers.
+        ValueError: ``factors`` is not [num_limbs, 6] of positive finite numbers, or MuJoCo refuses the
+            edited body (mujoco's own message).
     """
     factors = np.asarray(factors, np.float64)
     if factors.shape != (morphology.num_limbs, len(QUANTITIES)) or not np.all(
@@ -120,11 +152,13 @@ def variant_spec(morphology: Morphology, factors: np.ndarray) -> mujoco.MjSpec:
             f"numbers (limbs x {', '.join(QUANTITIES)}), got shape {factors.shape}"
         )
     spec = mujoco.MjSpec.from_file(str(morphology.path))
+    clearance = lowest_point(spec.compile())
     for limb, name in enumerate(morphology.limb_names):
         body = spec.body(name)
         _scale_geometry(body, *factors[limb, :3])
         if limb > 0:
             _scale_joint_and_motor(spec, body, factors[limb, 3:])
+    _keep_clearance(spec, morphology.limb_names[0], clearance)
     return spec
 
 
@@ -151,16 +185,15 @@ def write_variants(
     directory.mkdir(parents=True, exist_ok=True)
     variants = []
     for index, factors in enumerate(variation.factors(nominal.num_limbs, count)):
-        spec = variant_spec(nominal, factors)
-        spec.add_text(name=SOURCE_TEXT, data=nominal.name)
         try:
-            spec.compile()
+            spec = variant_spec(nominal, factors)
         except ValueError as error:
             raise MorphologyError(
                 nominal.path,
                 f"MuJoCo refuses variant {index} (seed {variation.seed}, spread {variation.spread}): {error}; "
                 f"its factors per limb ({', '.join(QUANTITIES)}): {_factor_text(nominal, factors)}",
             ) from None
+        spec.add_text(name=SOURCE_TEXT, data=nominal.name)
         path = directory / f"{variant_name(nominal.name, variation.seed, index)}.xml"
         path.write_text(spec.to_xml())
         variants.append(load(path))
@@ -169,6 +202,6 @@ def write_variants(
 
 def _factor_text(morphology: Morphology, factors: np.ndarray) -> str:
     return "; ".join(
-        f"{name} {' '.join(f'{value:.3f}' for value in row)}"
+        f"{name} {' '.join(f'{value:.4g}' for value in row)}"
         for name, row in zip(morphology.limb_names, factors, strict=True)
     )

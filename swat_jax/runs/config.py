@@ -102,6 +102,12 @@ class TrainConfig:
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
     copies: int = 1
     """Parallel environment copies per body."""
+    variants: int = 0
+    """Train on variants: copy j of each body runs variant j mod K of K variants drawn from it (its limbs' lengths, radii, masses, joint ranges, damping and gears scaled; docs/bodies-and-environments.md), fixed for the run, all through one program per body; at most --copies. 0: the bodies themselves."""
+    variation: float = 0.2
+    """With --variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]; in [0, 1)."""
+    variant_seed: int = 0
+    """With --variants: seed of the variants' draw (python -m swat_jax.morphology variants BODY -k K --variation X --seed S writes the same bodies)."""
     iteration: IterationConfig = dataclasses.field(default_factory=lambda: IterationConfig(rounds=True))
     """One jitted iteration: per-copy steps collected (chunk), updates and their schedule, random steps, noise, replay capacity."""
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
@@ -194,6 +200,17 @@ class TrainConfig:
             raise ConfigError(
                 f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
                 f"(--copies {self.copies})"
+            )
+        if not 0 <= self.variants <= self.copies:
+            raise ConfigError(
+                f"--variants must be 0 (off) or a number up to --copies ({self.copies}): each copy runs one "
+                f"variant; got {self.variants}"
+            )
+        if not 0.0 <= self.variation < 1.0:
+            raise ConfigError(f"--variation must lie in [0, 1) (factors stay positive), got {self.variation}")
+        if self.variants and self.physics != "jax":
+            raise ConfigError(
+                "--variants runs on --physics jax (the variants' numbers are inputs of its step)"
             )
         if self.stale_kinematics and self.physics != "jax":
             raise ConfigError(

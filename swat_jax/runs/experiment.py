@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import numpy as np
 from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.morphology import Morphology, limb_buckets
+from swat_jax.morphology.variants import Variation, write_variants
 from swat_jax.networks import (
     Params,
     StructureMismatch,
@@ -59,7 +61,15 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
-        env = make_env(config, tasks.bodies, config.copies, config.seeds, lock_step=config.iteration.rounds)
+        env = make_env(
+            config,
+            tasks.bodies,
+            config.copies,
+            config.seeds,
+            lock_step=config.iteration.rounds,
+            variants=config.variants,
+            variation=Variation(config.variation, config.variant_seed),
+        )
         if config.init_from:
             check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features)
@@ -197,20 +207,33 @@ class Experiment:
 
 
 def make_env(
-    config: TrainConfig, bodies: Sequence[Morphology], copies: int, runs: int, *, lock_step: bool = False
+    config: TrainConfig,
+    bodies: Sequence[Morphology],
+    copies: int,
+    runs: int,
+    *,
+    lock_step: bool = False,
+    variants: int = 0,
+    variation: Variation | None = None,
 ) -> MultiTaskEnv:
     """The environments of ``bodies`` as a run with ``config`` simulates them (its observation switches and
     physics): ``copies`` per body, for ``runs`` seeds vmapped over them (the one place a config becomes a
-    :class:`~swat_jax.envs.multi_task.MultiTaskEnv`)."""
-    return MultiTaskEnv(
-        bodies,
-        copies,
+    :class:`~swat_jax.envs.multi_task.MultiTaskEnv`). With ``variants`` K, copy j of each body runs variant
+    j mod K drawn by ``variation`` (default: spread 0.2, seed 0): the variants are written to a temporary folder, compiled, and the
+    folder removed (the draw is a function of the body, K, the spread and the seed)."""
+    settings = dict(
         torso_relative_x=config.torso_relative_x,
         stale_kinematics=config.stale_kinematics,
         physics=config.physics,
         runs=runs,
         lock_step=lock_step,
     )
+    if not variants:
+        return MultiTaskEnv(bodies, copies, **settings)
+    with tempfile.TemporaryDirectory(prefix="swat_jax_variants_") as folder:
+        variation = variation or Variation()
+        drawn = [write_variants(body.path, variants, variation, Path(folder) / body.name) for body in bodies]
+        return MultiTaskEnv(bodies, copies, variants=drawn, **settings)
 
 
 def program_recipe(config: TrainConfig, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:

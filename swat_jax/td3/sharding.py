@@ -89,7 +89,11 @@ class Placement:
         """The sharding of an array whose leading axis is the seed axis (metrics, evaluation results)."""
         return NamedSharding(self.mesh, PartitionSpec(SEEDS))
 
-    def _sharding(self, leaf: jax.Array, seed_axis: int | None, task_axis: int | None) -> NamedSharding:
+    def _sharding(
+        self, leaf: jax.Array | None, seed_axis: int | None, task_axis: int | None
+    ) -> NamedSharding | None:
+        if leaf is None:  # an absent optional field (an environment state without a variant)
+            return None
         dims: list[str | None] = [None] * len(leaf.shape)
         if seed_axis is not None:
             dims[0] = SEEDS
