@@ -363,14 +363,18 @@ def _step_and_restart(
         simulated = jax.vmap(env.step_kinematics)(simulated, variant)
         initial = jax.vmap(env.kinematics)(initial, variant)
     else:
-        twice = lambda a, b: jnp.concatenate([a, b])  # noqa: E731
-        both = jax.tree_util.tree_map(twice, simulated, initial)
-        both = jax.vmap(env.kinematics)(both, jax.tree_util.tree_map(twice, variant, variant))
+        both = jax.tree_util.tree_map(_joined, simulated, initial)
+        both = jax.vmap(env.kinematics)(both, jax.tree_util.tree_map(_joined, variant, variant))
         simulated, initial = (
             jax.tree_util.tree_map(lambda x, s=s: x[s], both)
             for s in (slice(None, copies), slice(copies, None))
         )
     return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial, variant)
+
+
+def _joined(first: jax.Array, second: jax.Array) -> jax.Array:
+    """``first`` and ``second`` concatenated along their copy axis."""
+    return jnp.concatenate([first, second])
 
 
 def _where_done(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState:
