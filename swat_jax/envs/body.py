@@ -179,7 +179,7 @@ class BodyEnv:
 
     def reset(self, rng: jax.Array, variant: Variant | None = None) -> EnvState:
         """Start an episode at the initial pose plus the family's reset noise (of ``variant``: one row of
-        :meth:`variant_table`; None: the nominal body)."""
+        :meth:`variant_table`; None: the body, or with variants its first one)."""
         return self.start(self.kinematics(self.initial_data(rng, variant), variant), variant)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
