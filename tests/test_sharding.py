@@ -1,5 +1,5 @@
-"""Training over a device mesh (swat_jax.td3.sharding): the mesh rule, and a run over 4 fake CPU devices
-that equals its unsharded twin, resumes on the other layout, evaluates and exports.
+"""Training over a device mesh (swat_jax.td3.sharding): the mesh rule, and a run on variants of its bodies
+over 4 fake CPU devices that equals its unsharded twin, resumes on the other layout, evaluates and exports.
 
 The 4 devices are XLA's fake host devices (``--xla_force_host_platform_device_count``), which must be set
 before JAX starts, so the run happens in a subprocess (tests/sharded_twins.py).
@@ -75,9 +75,15 @@ def test_checkpoints_resume_on_the_other_layout(sharded_twins):
         "mesh of 1 cpu device: seeds 1 x tasks 1",
         sharded_twins["meshes"][0],
     ]
-    assert sharded_twins["env_steps"] == [300, 300], "per body: 3 iterations of 2 copies x 50 steps"
+    assert sharded_twins["env_steps"] == [60, 60], "per body: 3 iterations of 2 copies x 10 steps"
     assert sharded_twins["after_resume"]["integers_equal"]
     assert sharded_twins["after_resume"]["relative"] < 1e-3
+
+
+def test_variants_are_split_with_the_copies_and_kept_by_each(sharded_twins):
+    """The twins' equality above covers the variant rows (part of the environment state); here: they are variants."""
+    assert sharded_twins["copies_differ"], "copy 0 and copy 1 run different variants of the body"
+    assert sharded_twins["seeds_share_variants"], "every seed trains on the same variants"
 
 
 def test_a_sharded_run_evaluates_and_exports(sharded_twins):

@@ -18,6 +18,8 @@ from swat_jax.envs import BodyEnv, MultiTaskEnv
 from swat_jax.eval import EvalOptions, evaluate_run
 from swat_jax.morphology.variants import Variation, write_variants
 from swat_jax.runs import Checkpoints, ConfigError, Experiment, load_config
+from swat_jax.runs.config import FIXES
+from swat_jax.td3.iteration import IterationConfig
 from swat_jax.train import train
 
 SCRIPT = """
@@ -101,11 +103,15 @@ def test_copies_of_a_body_run_its_variants_in_turn_and_keep_them_across_resets(t
 
 
 def test_a_run_trains_on_variants_and_evaluates_on_held_out_ones(tmp_path, hopper_folder):
-    """--variants 2 with 2 copies: each copy of the run's state holds its own variant (the same in both
-    seeds), the run resumes from its checkpoint with them, and eval runs other variants (another seed)."""
+    """--variants 2 with 2 copies under the fast preset's settings (the paper preset's run on variants is
+    tests/test_sharding.py's): each copy of the run's state holds its own variant (the same in both seeds),
+    the run resumes from its checkpoint with them, and eval runs other variants (another seed)."""
     config = tiny_train_config(
         tmp_path / "run",
         hopper_folder,
+        preset="fast",
+        iteration=IterationConfig(chunk=50, updates=4, schedule="all_tasks", random_steps=100, capacity=1000),
+        **FIXES,
         steps=200,
         variants=2,
         variation=0.3,
