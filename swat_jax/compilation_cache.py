@@ -17,12 +17,13 @@ Animal-Walkers run). :func:`compile_cached` keeps the run's large programs whole
 ``programs/`` of the same directory, keyed by what they are traced from (the run's config, its bodies'
 compiled MuJoCo models, the arguments' shapes and placement) and by this package's source, the
 libraries' versions, JAX's settings and ``XLA_FLAGS``: a second start of the same run loads them without
-tracing. The programs least recently saved or loaded are deleted once ``programs/`` outgrows
+tracing, and within one process a program asked for again (a second evaluation) is returned at once. The programs least recently saved or loaded are deleted once ``programs/`` outgrows
 ``$SWAT_JAX_PROGRAM_CACHE_GIB`` (default 2 GiB; an Animal-Walkers iteration takes about 7 MB).
 """
 
 from __future__ import annotations
 
+import collections
 import functools
 import hashlib
 import importlib.metadata
@@ -130,14 +131,30 @@ def compile_cached(
         return lower_built_afresh(build, *args).compile()
     limit = program_cache_limit()
     path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"
-    compiled = _load_program(path)
+    compiled = _in_memory.get(path) or _load_program(path)
     if compiled is None:
         hits = _persistent_cache_hits()
         compiled = lower_built_afresh(build, *args).compile()
         # JAX's cache held it: an executable it loaded saves without some of its kernels (jax 0.10.2).
         if _persistent_cache_hits() == hits:
             _save_program(compiled, path, limit)
+    _keep_in_memory(path, compiled)
     return compiled
+
+
+_in_memory: collections.OrderedDict[Path, Any] = collections.OrderedDict()
+"""The programs :func:`compile_cached` returned in this process, by file path, most recently used last: a
+second call for a program returns it without tracing, lowering or reading it back, even when it is not on
+disk (a program JAX's own cache held is not saved)."""
+IN_MEMORY_PROGRAMS = 8
+"""How many programs :data:`_in_memory` keeps (an Animal-Walkers iteration is about 7 MB saved)."""
+
+
+def _keep_in_memory(path: Path, compiled: Any) -> None:
+    _in_memory[path] = compiled
+    _in_memory.move_to_end(path)
+    while len(_in_memory) > IN_MEMORY_PROGRAMS:
+        _in_memory.popitem(last=False)
 
 
 def compiled_at_first_call(

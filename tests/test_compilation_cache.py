@@ -84,7 +84,9 @@ class Probe:
 
 @pytest.fixture
 def program_cache(tmp_path, monkeypatch):
-    """The program cache in a fresh directory; returns the directory its programs go to."""
+    """The program cache in a fresh directory, every call as in a fresh process (nothing kept in memory);
+    returns the directory its programs go to."""
+    monkeypatch.setattr(compilation_cache, "IN_MEMORY_PROGRAMS", 0)
     monkeypatch.setenv("SWAT_JAX_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
     monkeypatch.delenv("SWAT_JAX_COMPILATION_CACHE", raising=False)
@@ -99,6 +101,24 @@ def test_a_saved_program_is_loaded_without_tracing(program_cache):
     assert (first.traces, second.traces) == (1, 0)
     np.testing.assert_array_equal(loaded(x), expected)
     assert len(list(program_cache.iterdir())) == 1
+
+
+def test_a_process_traces_a_program_once_even_when_it_is_not_saved(program_cache, monkeypatch):
+    """JAX's own cache may give a program that is then not saved; the process keeps it all the same, the
+    most recently used IN_MEMORY_PROGRAMS of them."""
+    monkeypatch.setattr(compilation_cache, "IN_MEMORY_PROGRAMS", 2)
+    monkeypatch.setattr(compilation_cache, "_save_program", lambda *args: None)
+    x = jnp.ones((4, 3))
+
+    def traces(recipe: str) -> int:
+        probe = Probe()
+        compile_cached("probe", probe.build, (x,), (recipe,))
+        return probe.traces
+
+    assert [traces("first"), traces("first"), traces("second"), traces("first")] == [1, 0, 1, 0]
+    assert traces("third") == 1
+    assert traces("second") == 1, "the least recently used of 2 programs was dropped"
+    assert not program_cache.exists()
 
 
 def test_another_recipe_or_argument_is_another_program(program_cache):

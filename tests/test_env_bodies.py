@@ -1,8 +1,12 @@
 """Every benchmark body resets and steps under jit, and its float32 MJX rollout tracks MuJoCo C.
 
-One compiled rollout (reset + 10 steps in a ``lax.scan``) per body; 5-7 s of compile each on a 2-core
-CPU with the suite's XLA flags (conftest.py; 11-12 s with XLA's defaults), so the module is marked slow
-(it still runs in CI).
+One compiled rollout (reset + 10 steps in a ``lax.scan``) per body: 2 s of tracing and 5 s of compile
+each on a 2-core CPU with the suite's XLA flags (conftest.py; 11-12 s with XLA's defaults), so it runs
+on the bodies that can differ in MJX's physics: every hand-written body, and of the 34 the generator
+derives from them (an intact body with limbs removed: the same geoms, joints and motors), the smallest of
+each intact body's. Every one of the 43 bodies' observation, reward and termination is compared with the
+original code's own numbers on MuJoCo C's state in tests/test_original_parity.py, and the generated
+files with the generator's output in tests/test_morphologies.py.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import pytest
 from mujoco_reference import mjx_and_c_rollouts
 
 from swat_jax.morphology import benchmark_names, load
+from swat_jax.morphology.generate import VARIANTS
 
 STEPS = 10
 FLOAT32_STATE_TOLERANCE = 1e-3
@@ -22,12 +27,34 @@ FLOAT32_OBSERVATION_TOLERANCE = 2e-2
 """Velocities amplify the state's rounding differences."""
 
 
+def rollout_bodies() -> list[str]:
+    """The hand-written bodies, and for each the generated body with the fewest limbs (the most removed)."""
+    hand_written = [name for name in benchmark_names() if name not in VARIANTS]
+    smallest = {}
+    for name, variant in sorted(VARIANTS.items()):
+        kept = smallest.get(variant.source)
+        if kept is None or len(variant.removed) > len(VARIANTS[kept].removed):
+            smallest[variant.source] = name
+    return hand_written + sorted(smallest.values())
+
+
+ROLLOUT_BODIES = rollout_bodies()
+
+
 def test_the_benchmark_has_43_bodies():
     assert len(benchmark_names()) == 43
 
 
+def test_the_rollouts_cover_every_hand_written_body_and_the_generators_smallest():
+    assert ROLLOUT_BODIES == [
+        "cheetah_7_full", "hopper_5", "humanoid_2d_9_full", "nervenet_fullcheetah", "nervenet_halfcheetah",
+        "nervenet_halfhumanoid", "nervenet_hopper", "nervenet_ostrich", "walker_7_main",
+        "cheetah_2_back", "hopper_3", "humanoid_2d_7_left_arm", "walker_2_flipped",
+    ]  # fmt: skip
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", benchmark_names())
+@pytest.mark.parametrize("name", ROLLOUT_BODIES)
 def test_body_resets_and_steps_under_jit_like_mujoco_c(name):
     body = load(name)
     features = 15 + body.family.num_limb_types

@@ -90,14 +90,18 @@ def test_bad_physics_is_refused():
 
 @pytest.mark.slow
 def test_a_warp_run_trains_and_evaluates_on_warp(tmp_path, hopper_folder):
-    """Train (2 seeds, periodic evaluation) and evaluate with --physics warp; the final eval/* columns are
-    what swat_jax.eval measures with the run's physics."""
+    """Train (2 seeds, 2 iterations, evaluated after the second) and evaluate with --physics warp; the
+    eval/* columns are what swat_jax.eval measures with the run's physics. Short: Warp steps slowly on the
+    CPU (600 steps and two evaluations took 73 s here, 200 steps and one 27 s)."""
     run_dir = tmp_path / "warp"
-    train(tiny_train_config(run_dir, hopper_folder, physics="warp", stale_kinematics=False), progress=False)
+    config = tiny_train_config(
+        run_dir, hopper_folder, physics="warp", stale_kinematics=False, steps=200, eval_interval=200
+    )
+    train(config, progress=False)
     policy = load_policy(run_dir)
     assert policy.config.physics == "warp"
     [evaluation] = evaluate(policy, ["hopper_3"], episodes=2, seed=0)
-    final = {int(row["seed"]): row for row in read_metrics(run_dir) if row["env_steps"] == 600}
+    final = {int(row["seed"]): row for row in read_metrics(run_dir) if row["env_steps"] == 200}
     assert len(final) == 2
     for index, seed in enumerate(evaluation.seeds):
         assert np.isfinite(final[seed]["critic_loss"])
