@@ -17,7 +17,8 @@ Animal-Walkers run). :func:`compile_cached` keeps the run's large programs whole
 ``programs/`` of the same directory, keyed by what they are traced from (the run's config, its bodies'
 compiled MuJoCo models, the arguments' shapes and placement) and by this package's source, the
 libraries' versions, JAX's settings and ``XLA_FLAGS``: a second start of the same run loads them without
-tracing, and within one process a program asked for again (a second evaluation) is returned at once. The programs least recently saved or loaded are deleted once ``programs/`` outgrows
+tracing, and within one process a program asked for again (a second evaluation) is returned at once.
+The programs least recently saved or loaded are deleted once ``programs/`` outgrows
 ``$SWAT_JAX_PROGRAM_CACHE_GIB`` (default 2 GiB; an Animal-Walkers iteration takes about 7 MB).
 """
 
@@ -50,6 +51,8 @@ a GPU library) are not saved."""
 SIZE_VARIABLE = "SWAT_JAX_PROGRAM_CACHE_GIB"
 DEFAULT_PROGRAMS_GIB = 2.0
 """The program cache's size limit, GiB, unless ``$SWAT_JAX_PROGRAM_CACHE_GIB`` sets another."""
+IN_MEMORY_PROGRAMS = 8
+"""How many programs a process keeps (:data:`_in_memory`; an Animal-Walkers iteration is about 7 MB saved)."""
 LIBRARIES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy", "warp-lang")
 """The installed distributions whose versions key the program cache (besides this package's source)."""
 
@@ -70,6 +73,10 @@ def cache_directory() -> Path | None:
 
 _programs_enabled = False
 """Whether :func:`compile_cached` keeps programs: set by :func:`enable_caches`."""
+_in_memory: collections.OrderedDict[Path, Any] = collections.OrderedDict()
+"""The programs :func:`compile_cached` returned in this process, by file path, most recently used last: a
+second call for a program returns it without tracing, lowering or reading it back, even when it is not on
+disk (a program JAX's own cache held is not saved)."""
 
 
 def enable_caches() -> Path | None:
@@ -140,14 +147,6 @@ def compile_cached(
             _save_program(compiled, path, limit)
     _keep_in_memory(path, compiled)
     return compiled
-
-
-_in_memory: collections.OrderedDict[Path, Any] = collections.OrderedDict()
-"""The programs :func:`compile_cached` returned in this process, by file path, most recently used last: a
-second call for a program returns it without tracing, lowering or reading it back, even when it is not on
-disk (a program JAX's own cache held is not saved)."""
-IN_MEMORY_PROGRAMS = 8
-"""How many programs :data:`_in_memory` keeps (an Animal-Walkers iteration is about 7 MB saved)."""
 
 
 def _keep_in_memory(path: Path, compiled: Any) -> None:
