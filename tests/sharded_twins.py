@@ -1,6 +1,6 @@
 """Run by tests/test_sharding.py in a process with 4 fake CPU devices: train a run over a 2 x 2 mesh and its
-unsharded twin, resume each on the other layout, then evaluate and export the sharded one. The copies of each body run
-two variants of it (--variants 2), whose rows are split over the mesh with the copies.
+unsharded twin, resume each on the other layout, then evaluate and export the sharded one. The copies of
+each body run two variants of it (--variants 2), whose rows are split over the mesh with the copies.
 
     XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_twins.py BODY_FOLDER OUT
 
