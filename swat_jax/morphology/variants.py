@@ -31,7 +31,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from swat_jax.morphology.mjcf import SOURCE_TEXT, MorphologyError, load
+from swat_jax.morphology.mjcf import SOURCE_TEXT, MorphologyError, compile_model, load
 from swat_jax.morphology.types import Morphology
 
 QUANTITIES = ("length", "radius", "mass", "joint_range", "damping", "gear")
@@ -136,8 +136,11 @@ def _keep_clearance(spec: mujoco.MjSpec, torso: str, clearance: float) -> None:
             joint.ref += shift
 
 
-def variant_spec(morphology: Morphology, factors: np.ndarray) -> mujoco.MjSpec:
+def variant_spec(
+    morphology: Morphology, factors: np.ndarray, clearance: float | None = None
+) -> mujoco.MjSpec:
     """The MjSpec of ``morphology`` with the per-limb ``factors`` [num_limbs, 6] applied (module docstring).
+    ``clearance``: the nominal body's :func:`lowest_point`, when already known (it is computed otherwise).
 
     Raises:
         ValueError: ``factors`` is not [num_limbs, 6] of positive finite numbers, or MuJoCo refuses the
@@ -152,7 +155,8 @@ def variant_spec(morphology: Morphology, factors: np.ndarray) -> mujoco.MjSpec:
             f"numbers (limbs x {', '.join(QUANTITIES)}), got shape {factors.shape}"
         )
     spec = mujoco.MjSpec.from_file(str(morphology.path))
-    clearance = lowest_point(spec.compile())
+    if clearance is None:
+        clearance = lowest_point(spec.compile())
     for limb, name in enumerate(morphology.limb_names):
         body = spec.body(name)
         _scale_geometry(body, *factors[limb, :3])
@@ -183,10 +187,11 @@ def write_variants(
     nominal = load(body)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    clearance = lowest_point(compile_model(nominal))
     variants = []
     for index, factors in enumerate(variation.factors(nominal.num_limbs, count)):
         try:
-            spec = variant_spec(nominal, factors)
+            spec = variant_spec(nominal, factors, clearance)
         except ValueError as error:
             raise MorphologyError(
                 nominal.path,
