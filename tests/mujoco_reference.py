@@ -44,6 +44,26 @@ def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
     return np.array(rows)
 
 
+def mujoco_c_rollout(
+    model: mujoco.MjModel, start, actions: np.ndarray, motor_limbs: np.ndarray, frame_skip: int
+) -> tuple[np.ndarray, np.ndarray, mujoco.MjData]:
+    """Plain ``mujoco.mj_step`` from ``start``'s qpos and qvel (an MJX state's data) under ``actions``
+    [steps, n] (per limb; the motors' clipped to [-1, 1]), ``frame_skip`` physics steps each: qpos
+    [steps, nq] and qvel [steps, nv] after every environment step, and the final data (``mj_forward``
+    applied)."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = start.qpos, start.qvel
+    qpos, qvel = [], []
+    for action in actions:
+        data.ctrl[:] = np.clip(action[motor_limbs], -1, 1)
+        for _ in range(frame_skip):
+            mujoco.mj_step(model, data)
+        qpos.append(data.qpos.copy())
+        qvel.append(data.qvel.copy())
+    mujoco.mj_forward(model, data)
+    return np.array(qpos), np.array(qvel), data
+
+
 def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax") -> dict[str, np.ndarray]:
     """The same random actions through the MJX environment (on the ``physics`` implementation) and through
     plain ``mujoco.mj_step``.
@@ -70,19 +90,12 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
 
     start, states = jax.tree_util.tree_map(np.asarray, jax.jit(rollout)(jax.random.PRNGKey(seed), actions))
     model = env.mj_model
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = start.data.qpos, start.data.qvel
-    qpos_error, qvel_error = np.zeros(steps), np.zeros(steps)
-    for t in range(steps):
-        data.ctrl[:] = np.clip(actions[t][env.motor_limbs], -1, 1)
-        for _ in range(env.morphology.frame_skip):
-            mujoco.mj_step(model, data)
-        qpos_error[t] = np.abs(data.qpos - states.data.qpos[t]).max()
-        qvel_error[t] = np.abs(data.qvel - states.data.qvel[t]).max()
-    mujoco.mj_forward(model, data)
+    qpos, qvel, data = mujoco_c_rollout(
+        model, start.data, actions, env.motor_limbs, env.morphology.frame_skip
+    )
     return dict(
-        qpos_error=qpos_error,
-        qvel_error=qvel_error,
+        qpos_error=np.abs(qpos - states.data.qpos).max(axis=1),
+        qvel_error=np.abs(qvel - states.data.qvel).max(axis=1),
         start_observation=start.observation,
         observation=states.observation,
         reward=states.reward,
@@ -122,15 +135,12 @@ def mjx_and_c_variant_rollouts(
     errors = dict(qpos=0.0, qvel=0.0, observation=0.0, spread=0.0)
     for j, variant in enumerate(variants):
         model = mujoco.MjModel.from_xml_path(str(variant.path))
-        data = mujoco.MjData(model)
-        data.qpos[:], data.qvel[:] = start.data.qpos[j], start.data.qvel[j]
-        for t in range(steps):
-            data.ctrl[:] = np.clip(actions[t, j][env.motor_limbs], -1, 1)
-            for _ in range(variant.frame_skip):
-                mujoco.mj_step(model, data)
-            errors["qpos"] = max(errors["qpos"], float(np.abs(data.qpos - states.data.qpos[t, j]).max()))
-            errors["qvel"] = max(errors["qvel"], float(np.abs(data.qvel - states.data.qvel[t, j]).max()))
-        mujoco.mj_forward(model, data)
+        start_j = jax.tree_util.tree_map(lambda x, j=j: x[j], start.data)
+        qpos, qvel, data = mujoco_c_rollout(
+            model, start_j, actions[:, j], env.motor_limbs, variant.frame_skip
+        )
+        errors["qpos"] = max(errors["qpos"], float(np.abs(qpos - states.data.qpos[:, j]).max()))
+        errors["qvel"] = max(errors["qvel"], float(np.abs(qvel - states.data.qvel[:, j]).max()))
         observed = numpy_observation(variant, model, data)
         errors["observation"] = max(
             errors["observation"], float(np.abs(observed - states.observation[-1, j]).max())
