@@ -3,7 +3,9 @@
 For each count N, one jitted, vmapped step of one body runs N copies, either all of the nominal body
 (baseline) or each a different variant (``BodyEnv(body, variants=...)``: the variants' numbers are inputs
 of the step). Both arms are timed in the same run, over ``--steps`` steps in a ``lax.scan`` after a
-warm-up call; compile time is reported apart. The ratio is variants' steps/s over the nominal copies'.
+warm-up call; compile time is reported apart, and so is the time to build the N variants (draw, write and
+load their MJCF files, then ``BodyEnv``'s compile and stacking). The ratio is variants' steps/s over the
+nominal copies'.
 
     python experiments/variants_benchmark.py [--body hopper_3] [--counts 1 64 1024] [--steps 50]
 """
@@ -66,24 +68,30 @@ def main(options: Options) -> None:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for count in options.counts:
+            begin = time.perf_counter()
             variants = write_variants(
                 options.body, count, Variation(options.variation), Path(folder) / str(count)
             )
+            written = time.perf_counter() - begin
             env = BodyEnv(options.body, variants=variants)
+            built = (written, time.perf_counter() - begin - written)
             baseline = timed(nominal, count, options.steps, None)
             drawn = timed(env, count, options.steps, env.variant_table())
-            rows.append((count, baseline, drawn))
+            rows.append((count, built, baseline, drawn))
             print(
                 f"{count}: nominal {baseline[1]:,.0f} steps/s, variants {drawn[1]:,.0f} steps/s", flush=True
             )
     print(f"\nCPU: {cpu_model()}, {host_cores()} cores; {jax.devices()[0].platform}; {software_versions()}")
     print(f"{options.body}, {options.steps} steps per call, variation {options.variation}")
-    print("| copies | nominal copies: steps/s (compile s) | variants: steps/s (compile s) | ratio |")
-    print("|---|---|---|---|")
-    for count, (base_compile, base), (variant_compile, variant) in rows:
+    print(
+        "| copies | nominal copies: steps/s (compile s) | variants: steps/s (compile s) | ratio "
+        "| variants written + env built (s) |"
+    )
+    print("|---|---|---|---|---|")
+    for count, (written, env_built), (base_compile, base), (variant_compile, variant) in rows:
         print(
             f"| {count:,} | {base:,.0f} ({base_compile:.1f}) | {variant:,.0f} ({variant_compile:.1f}) | "
-            f"{variant / base:.2f} |"
+            f"{variant / base:.2f} | {written:.1f} + {env_built:.1f} |"
         )
 
 

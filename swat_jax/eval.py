@@ -207,9 +207,13 @@ class EvalOptions:
     variant_seed: int = 1
     """With --variants: seed of the draw; a training run with --variants drew its own with --variant-seed (default 0), so the default 1 gives held-out variants."""
 
+    def variant_draw(self) -> Variation:
+        """How the evaluated variants are drawn (--variation, --variant-seed); ValueError for a bad spread."""
+        return Variation(self.variation, self.variant_seed)
+
     def __post_init__(self) -> None:
         require_positive("--episodes", self.episodes)
-        Variation(self.variation, self.variant_seed)
+        self.variant_draw()
         if self.variants < 0:
             raise ValueError(f"--variants must be 0 (off) or more, got {self.variants}")
 
@@ -272,7 +276,7 @@ def evaluate_run(run_dir: str | Path, options: EvalOptions = EvalOptions()) -> R
         record=options.video is not None,
         seed_indices=None if options.seed_index is None else [options.seed_index],
         variants=options.variants,
-        variation=Variation(options.variation, options.variant_seed),
+        variation=options.variant_draw(),
     )
     if options.video is not None:
         from swat_jax.render import render_rollout

@@ -30,6 +30,7 @@ import numpy as np
 
 from swat_jax.envs.physics import Implementation
 from swat_jax.morphology import SETS, get_set, load
+from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
 from swat_jax.networks.smp import most_children
 from swat_jax.td3.iteration import SCHEDULES, IterationConfig
@@ -206,8 +207,12 @@ class TrainConfig:
                 f"--variants must be 0 (off) or a number up to --copies ({self.copies}): each copy runs one "
                 f"variant; got {self.variants}"
             )
-        if not 0.0 <= self.variation < 1.0:
-            raise ConfigError(f"--variation must lie in [0, 1) (factors stay positive), got {self.variation}")
+        try:
+            self.variant_draw()
+        except ValueError:
+            raise ConfigError(
+                f"--variation must lie in [0, 1) (factors stay positive), got {self.variation}"
+            ) from None
         if self.variants and self.physics != "jax":
             raise ConfigError(
                 "--variants runs on --physics jax (the variants' numbers are inputs of its step)"
@@ -230,6 +235,10 @@ class TrainConfig:
         if self.smp_hidden is not None:
             sizes.update(up_hidden=(self.smp_hidden,) * 2, down_hidden=(self.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
+
+    def variant_draw(self) -> Variation:
+        """How the run's variants are drawn (--variation, --variant-seed); ValueError for a bad spread."""
+        return Variation(self.variation, self.variant_seed)
 
     def program_config(self) -> TrainConfig:
         """This config with the fields that only the host loop reads set to their defaults: where and how

@@ -68,7 +68,7 @@ class Experiment:
             config.seeds,
             lock_step=config.iteration.rounds,
             variants=config.variants,
-            variation=Variation(config.variation, config.variant_seed),
+            variation=config.variant_draw(),
         )
         if config.init_from:
             check_transfer(config, env.observation_features)
