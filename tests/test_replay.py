@@ -67,7 +67,7 @@ def test_buffer_check_reports_gib_and_names_the_flag_to_lower():
     assert "5.22 GiB" in report and "5 tasks x 500,000 transitions" in report
     with pytest.raises(
         MemoryError,
-        match=r"5.22 GiB .* do not fit in 3.20 GiB .* lower --replay-capacity to at most 306,646$",
+        match=r"5.22 GiB .* do not fit in 3.20 GiB .* lower --iteration\.capacity to at most 306,646$",
     ) as error:
         check_buffer_fits(5, 500_000, 13, 21, free_bytes=4 * 2**30)
     fitting = int(str(error.value).rsplit(" ", 1)[1].replace(",", ""))

@@ -85,7 +85,7 @@ def check_buffer_fits(
     free_bytes: int,
     *,
     seeds: int = 1,
-    flag: str = "--replay-capacity",
+    flag: str = "--iteration.capacity",
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
 
