@@ -138,30 +138,47 @@ class Learner:
             critic_grads, state.critic_optimizer, state.critic_params
         )
         critic_params = optax.apply_updates(state.critic_params, critic_updates)
+        stepped = state.replace(critic_params=critic_params, critic_optimizer=critic_optimizer)
 
         if delayed is None:
             delayed = (state.updates + 1) % self.config.policy_delay == 0
-        actor_params, actor_optimizer, actor_loss = jax.lax.cond(
+        next_state, actor_loss = jax.lax.cond(
             delayed,
-            self.actor_step,
-            lambda *_: (state.actor_params, state.actor_optimizer, jnp.zeros((), jnp.float32)),
-            state.actor_params,
-            state.actor_optimizer,
-            critic_params,
+            self.delayed_step,
+            _without_delayed_step,
+            stepped,
             batch,
             structure,
         )
-        rate = jnp.where(delayed, self.config.tau, 0.0)
-        next_state = LearnerState(
-            actor_params=actor_params,
-            critic_params=critic_params,
-            target_actor_params=optax.incremental_update(actor_params, state.target_actor_params, rate),
-            target_critic_params=optax.incremental_update(critic_params, state.target_critic_params, rate),
-            actor_optimizer=actor_optimizer,
-            critic_optimizer=critic_optimizer,
-            updates=state.updates + 1,
-        )
+        next_state = next_state.replace(updates=state.updates + 1)
         return next_state, {"critic_loss": critic_loss, "actor_loss": actor_loss}
+
+    def delayed_step(
+        self, state: LearnerState, batch: Transitions, structure: StructureBatch
+    ) -> tuple[LearnerState, jax.Array]:
+        """The delayed step of ``update``, taken after its critic step (``state`` holds the new critic): the
+        actor step on the new critic, then both target networks follow their networks with rate ``tau``.
+
+        Args:
+            batch: [T, B, ...] transitions, one slice per task.
+            structure: [T, ...] structure of the tasks.
+
+        Returns:
+            The state with new actor, actor optimizer and targets; the [] actor loss.
+        """
+        actor_params, actor_optimizer, actor_loss = self.actor_step(
+            state.actor_params, state.actor_optimizer, state.critic_params, batch, structure
+        )
+        rate = jnp.float32(self.config.tau)  # 1 - rate then rounds to float32 as the parameters do
+        next_state = state.replace(
+            actor_params=actor_params,
+            actor_optimizer=actor_optimizer,
+            target_actor_params=optax.incremental_update(actor_params, state.target_actor_params, rate),
+            target_critic_params=optax.incremental_update(
+                state.critic_params, state.target_critic_params, rate
+            ),
+        )
+        return next_state, actor_loss
 
     def actor_step(
         self,
@@ -262,6 +279,14 @@ class Learner:
             for bucket in self.buckets
         )
         return total / batch.reward.shape[0]
+
+
+def _without_delayed_step(
+    state: LearnerState, batch: Transitions, structure: StructureBatch
+) -> tuple[LearnerState, jax.Array]:
+    """The branch of ``update`` without the delayed step: ``state`` untouched (actor and targets
+    included) and a [] actor loss of 0."""
+    return state, jnp.zeros((), jnp.float32)
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
