@@ -1,4 +1,5 @@
-"""Time the multi-task MJX environment step against MuJoCo C, and measure its compile time and memory.
+"""Time the multi-task environment step (on MJX, or on MuJoCo C through its host callback) against MuJoCo C
+alone, and measure its compile time and memory.
 
 Measured on the machine it runs on, each printed as a markdown table for BENCHMARKS.md:
 
@@ -21,7 +22,7 @@ state are its own. The throughput runs use the persistent compilation cache as c
 compile column then shows a cache load); ``SWAT_JAX_COMPILATION_CACHE=0`` gives cold compile times.
 
     python experiments/env_benchmark.py [--sets hopper walker animal_walkers cwhh] [--copies 1 16]
-        [--steps 100] [--physics jax|warp] [--compile-sets hopper animal_walkers] [--compile-only | --no-compile]
+        [--steps 100] [--physics jax|warp|c] [--compile-sets hopper animal_walkers] [--compile-only | --no-compile]
 """
 
 from __future__ import annotations
@@ -329,8 +330,9 @@ def copies_for_set(set_name: str, copies: Sequence[int], largest_only_above: int
 def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: float) -> str:
     """The throughput table (MJX, C, ratio) and the per-configuration compile and memory table."""
     speed = [
-        "| set | bodies x max limbs | copies | MJX steps/s | MuJoCo C steps/s (1 thread) | MJX / C |",
-        "|---|---|---|---|---|---|",
+        f"| set | bodies x max limbs | copies | physics {args.physics}: steps/s | per core ({host_cores()} cores) "
+        "| MuJoCo C alone steps/s (1 thread) | per core / C alone |",
+        "|---|---|---|---|---|---|---|",
     ]
     memory = [
         "| set | copies | trace (s) | compile (s) | peak RSS (GiB) | device peak (GiB) |",
@@ -346,10 +348,11 @@ def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: 
         set_copies = copies_for_set(set_name, copies, args.largest_only_above)
         rows, _ = sweep_copies(set_name, set_copies, measure, args.min_gain, started)
         for row in rows:
-            name, mjx_speed = display_name(set_name), row["steps_per_second"]
+            name, env_speed = display_name(set_name), row["steps_per_second"]
+            per_core = env_speed / host_cores()
             speed.append(
-                f"| {name} | {row['bodies']}x{row['max_limbs']} | {row['copies']} | {mjx_speed:,.0f} "
-                f"| {c_speed:,.0f} | {mjx_speed / c_speed:.2f} |"
+                f"| {name} | {row['bodies']}x{row['max_limbs']} | {row['copies']} | {env_speed:,.0f} "
+                f"| {per_core:,.0f} | {c_speed:,.0f} | {per_core / c_speed:.2f} |"
             )
             memory.append(
                 f"| {name} | {row['copies']} | {row['trace_s']:.1f} | {row['compile_s']:.1f} "
@@ -419,7 +422,11 @@ def parse_arguments() -> argparse.Namespace:
     )
     parser.add_argument("--steps", type=int, default=100, help="env steps per timed call (one lax.scan)")
     parser.add_argument(
-        "--physics", choices=("jax", "warp"), default="jax", help="MJX implementation (default jax)"
+        "--physics",
+        choices=("jax", "warp", "c"),
+        default="jax",
+        help="the environment's physics: MJX's jax or warp implementation, or MuJoCo C through its host "
+        "callback (default jax)",
     )
     parser.add_argument("--repeats", type=int, default=3, help="timed calls per configuration (median)")
     parser.add_argument(

@@ -9,8 +9,11 @@ of TD3 update work (updates x batch / s), and both as ratios to the first preset
 the same run. ``--collection`` adds the paper preset's collection alone.
 
     python experiments/preset_benchmark.py [--env hopper] [--algo swat] [--iterations 3]
-        [--capacity 100000] [--fast-copies 16 64]
-        [--presets paper fast] [--collection]
+        [--capacity 100000] [--fast-copies 16 64] [--fast-updates 1 64] [--physics auto|c|jax]
+        [--seeds 1] [--sizes 32 1 64] [--presets paper fast] [--collection]
+
+``--fast-updates 1`` with the fast preset's row splits its iteration into stepping (and replay) and
+updates; ``--physics`` compares MJX with MuJoCo C.
 """
 
 from __future__ import annotations
@@ -104,6 +107,24 @@ def main() -> None:
         "--fast-copies", type=int, nargs="*", default=[], help="also time fast with these copy counts"
     )
     parser.add_argument(
+        "--fast-updates",
+        type=int,
+        nargs="*",
+        default=[],
+        help="also time fast with these updates per iteration",
+    )
+    parser.add_argument(
+        "--physics",
+        default="auto",
+        choices=("auto", "c", "jax", "warp"),
+        help="every run's physics (default auto)",
+    )
+    parser.add_argument("--seeds", type=int, default=1, help="seeds in each program (default 1)")
+    parser.add_argument(
+        "--sizes", type=int, nargs=3, metavar=("WIDTH", "LAYERS", "FEEDFORWARD"),
+        help="network sizes (default: the algorithm's, paper-sized)",
+    )  # fmt: skip
+    parser.add_argument(
         "--collection",
         action="store_true",
         help="also time the paper preset's collection alone (no rounds, 1 update per body): with the paper row "
@@ -113,11 +134,19 @@ def main() -> None:
 
     def configured(preset: str, **changes) -> TrainConfig:
         base = PRESETS[preset]
-        iteration = dataclasses.replace(base.iteration, random_steps=0, capacity=args.capacity)
-        return dataclasses.replace(base, env=args.env, algo=args.algo, iteration=iteration, **changes)
+        iteration = dataclasses.replace(
+            base.iteration, random_steps=0, capacity=args.capacity, **changes.pop("iteration", {})
+        )
+        sizes = dict(zip(("width", "layers", "feedforward"), args.sizes or (), strict=False))
+        stale = base.stale_kinematics and args.physics != "warp"
+        return dataclasses.replace(
+            base, env=args.env, algo=args.algo, iteration=iteration, physics=args.physics, seeds=args.seeds,
+            stale_kinematics=stale, **sizes, **changes,
+        )  # fmt: skip
 
     runs = [(preset, configured(preset)) for preset in args.presets]
     runs += [(f"fast, {n} copies", configured("fast", copies=n)) for n in args.fast_copies]
+    runs += [(f"fast, {n} updates", configured("fast", iteration={"updates": n})) for n in args.fast_updates]
     if args.collection:
         paper = configured("paper")
         collection = dataclasses.replace(paper.iteration, rounds=False, updates=1)
@@ -135,7 +164,8 @@ def main() -> None:
     paper = results[0]
     device = jax.devices()[0]
     print(
-        f"\n{args.env}, {args.algo}; {device.platform}: {cpu_model() if device.platform == 'cpu' else device.device_kind}"
+        f"\n{args.env}, {args.algo}, physics {args.physics}, {args.seeds} seeds; {device.platform}: "
+        f"{cpu_model() if device.platform == 'cpu' else device.device_kind}"
     )
     print(
         "\n| preset | copies | chunk | updates / iteration | batch per body | compile (s) "

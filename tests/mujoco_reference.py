@@ -64,6 +64,19 @@ def mujoco_c_rollout(
     return np.array(qpos), np.array(qvel), data
 
 
+def float64_state(data) -> tuple[np.ndarray, np.ndarray]:
+    """qpos [..., nq] and qvel [..., nv] of a simulator state as float64: an MJX state's own, a C physics
+    state's rounding plus its two remainders (``swat_jax.envs.c_physics.CData``)."""
+    qpos, qvel = np.asarray(data.qpos, np.float64), np.asarray(data.qvel, np.float64)
+    if not hasattr(data, "remainder"):
+        return qpos, qvel
+    nq, nv = qpos.shape[-1], qvel.shape[-1]
+    size = data.remainder.shape[-1] // 2
+    remainder = np.asarray(data.remainder, np.float64)
+    parts = remainder[..., :size] + remainder[..., size:]
+    return qpos + parts[..., :nq], qvel + parts[..., nq : nq + nv]
+
+
 def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax") -> dict[str, np.ndarray]:
     """The same random actions through the MJX environment (on the ``physics`` implementation) and through
     plain ``mujoco.mj_step``.
@@ -77,7 +90,12 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
     from swat_jax.envs import BodyEnv
 
     env = BodyEnv(name, physics=physics)
-    actions = np.random.default_rng(seed).uniform(-1, 1, (steps, env.num_limbs))
+    actions = (
+        np.random.default_rng(seed)
+        .uniform(-1, 1, (steps, env.num_limbs))
+        .astype(np.float32)
+        .astype(np.float64)
+    )
 
     def rollout(rng, actions):
         start = env.reset(rng)
@@ -93,9 +111,10 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
     qpos, qvel, data = mujoco_c_rollout(
         model, start.data, actions, env.motor_limbs, env.morphology.frame_skip
     )
+    env_qpos, env_qvel = float64_state(states.data)
     return dict(
-        qpos_error=np.abs(qpos - states.data.qpos).max(axis=1),
-        qvel_error=np.abs(qvel - states.data.qvel).max(axis=1),
+        qpos_error=np.abs(qpos - env_qpos).max(axis=1),
+        qvel_error=np.abs(qvel - env_qvel).max(axis=1),
         start_observation=start.observation,
         observation=states.observation,
         reward=states.reward,
@@ -106,10 +125,10 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
 
 
 def mjx_and_c_variant_rollouts(
-    name: str, count: int, steps: int, folder: str, seed: int = 0
+    name: str, count: int, steps: int, folder: str, seed: int = 0, physics: str = "jax"
 ) -> dict[str, float]:
     """``count`` variants of body ``name`` (written to ``folder``, spread 0.3) stepped together by one
-    vmapped MJX environment, each against plain ``mujoco.mj_step`` on its own MJCF file, under the same
+    vmapped environment (on the ``physics`` implementation), each against plain ``mujoco.mj_step`` on its own MJCF file, under the same
     random actions from the MJX reset state. Returns the max abs differences over variants and steps of
     qpos and qvel, and of the final observation against the NumPy one of each variant's MuJoCo C state."""
     import jax
@@ -118,8 +137,13 @@ def mjx_and_c_variant_rollouts(
     from swat_jax.morphology.variants import Variation, write_variants
 
     variants = write_variants(name, count, Variation(0.3, seed), folder)
-    env = BodyEnv(name, variants=variants)
-    actions = np.random.default_rng(seed).uniform(-1, 1, (steps, count, env.num_limbs))
+    env = BodyEnv(name, variants=variants, physics=physics)
+    actions = (
+        np.random.default_rng(seed)
+        .uniform(-1, 1, (steps, count, env.num_limbs))
+        .astype(np.float32)
+        .astype(np.float64)
+    )
 
     def rollout(keys, table, actions):
         start = jax.vmap(env.reset)(keys, table)
@@ -133,14 +157,15 @@ def mjx_and_c_variant_rollouts(
     keys = jax.random.split(jax.random.PRNGKey(seed), count)
     start, states = jax.tree_util.tree_map(np.asarray, jax.jit(rollout)(keys, env.variant_table(), actions))
     errors = dict(qpos=0.0, qvel=0.0, observation=0.0, spread=0.0)
+    env_qpos, env_qvel = float64_state(states.data)
     for j, variant in enumerate(variants):
         model = mujoco.MjModel.from_xml_path(str(variant.path))
         start_j = jax.tree_util.tree_map(lambda x, j=j: x[j], start.data)
         qpos, qvel, data = mujoco_c_rollout(
             model, start_j, actions[:, j], env.motor_limbs, variant.frame_skip
         )
-        errors["qpos"] = max(errors["qpos"], float(np.abs(qpos - states.data.qpos[:, j]).max()))
-        errors["qvel"] = max(errors["qvel"], float(np.abs(qvel - states.data.qvel[:, j]).max()))
+        errors["qpos"] = max(errors["qpos"], float(np.abs(qpos - env_qpos[:, j]).max()))
+        errors["qvel"] = max(errors["qvel"], float(np.abs(qvel - env_qvel[:, j]).max()))
         observed = numpy_observation(variant, model, data)
         errors["observation"] = max(
             errors["observation"], float(np.abs(observed - states.observation[-1, j]).max())

@@ -321,13 +321,15 @@ def test_stale_kinematics_give_the_observation_the_original_step_returns(body):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("physics", ["jax", "c"])
 @pytest.mark.parametrize("body", ["cheetah_4_front", "walker_7_main"])
-def test_the_mjx_step_reads_stale_kinematics_as_the_original(body):
-    """BodyEnv(stale_kinematics=True) on MJX (float32): from the original's state and action, the
-    observation the original's step returned, for Euler (cheetah) and RK4 (walker) integration."""
+def test_the_step_reads_stale_kinematics_as_the_original(body, physics):
+    """BodyEnv(stale_kinematics=True) on MJX (float32) and on MuJoCo C: from the original's state and
+    action, the observation the original's step returned, for Euler (cheetah) and RK4 (walker)
+    integration."""
     from swat_jax.envs import BodyEnv
 
-    env = BodyEnv(body, torso_relative_x=False, stale_kinematics=True)
+    env = BodyEnv(body, torso_relative_x=False, stale_kinematics=True, physics=physics)
     start = env.start(env.kinematics(env.simulator.initial))
     step = jax.jit(env.step)
     for index in range(len(recorded(body, "reward"))):

@@ -15,7 +15,7 @@ from mujoco_reference import mjx_and_c_rollouts
 from test_env_against_mujoco import ONE_BODY_PER_FAMILY
 from test_env_bodies import FLOAT32_OBSERVATION_TOLERANCE, FLOAT32_STATE_TOLERANCE
 
-from swat_jax.envs import MultiTaskEnv
+from swat_jax.envs import BodyEnv, MultiTaskEnv
 from swat_jax.envs.physics import Simulator
 from swat_jax.eval import evaluate
 from swat_jax.morphology.mjcf import compile_model, load
@@ -84,8 +84,10 @@ def test_warp_states_hold_no_shared_buffers_between_calls():
 
 
 def test_bad_physics_is_refused():
-    with pytest.raises(ValueError, match="physics must be one of jax, warp"):
+    with pytest.raises(ValueError, match="MJX runs physics 'jax' or 'warp', got 'cuda'"):
         Simulator(compile_model(load("hopper_3")), "cuda")
+    with pytest.raises(ValueError, match="physics must be one of auto, jax, warp, c, got 'cuda'"):
+        BodyEnv("hopper_3", physics="cuda")
 
 
 @pytest.mark.slow

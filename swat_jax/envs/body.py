@@ -28,14 +28,19 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from swat_jax.envs.c_physics import EXPLOSION_SPEED, CData, CSimulator
 from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
-from swat_jax.envs.physics import Implementation, ModelFields, Simulator, differing_fields
+from swat_jax.envs.physics import ModelFields, Physics, Simulator, differing_fields, resolve_physics
 from swat_jax.envs.quiet_mjx import mjx
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
 
-EXPLOSION_SPEED = 1e3
-"""A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
+__all__ = ["BOUNDED_STATE_LIMIT", "EXPLOSION_SPEED", "BodyEnv", "EnvState", "PhysicsData", "Variant"]
+
+PhysicsData = mjx.Data | CData
+"""A simulator state: MJX's on physics "jax" and "warp", :class:`~swat_jax.envs.c_physics.CData` on "c"
+(the same field names for what the environment reads)."""
+
 BOUNDED_STATE_LIMIT = 100.0
 """abs(qpos[2:]) and abs(qvel) stay below this for bodies with ``Termination.bounded_state``."""
 
@@ -47,9 +52,12 @@ class Variant:
     or vmapped (:meth:`BodyEnv.variant_table` has [k])."""
 
     model: ModelFields
-    """The ``mjx.Model`` leaves in which the variants differ, by key path (``physics.differing_fields``)."""
+    """The ``mjx.Model`` leaves in which the variants differ, by key path (``physics.differing_fields``);
+    empty on physics "c", where ``index`` picks the variant's compiled model."""
     joint_range: jax.Array
     """[n, 2] float32 joint ranges in degrees (the observation scales joint angles by them); 0 for the torso."""
+    index: jax.Array
+    """[] int32: the variant's row in the body's table (on physics "c", its MuJoCo model)."""
 
 
 @struct.dataclass
@@ -59,7 +67,7 @@ class EnvState:
     n = limbs, F = features per limb (19, or 21 for Animal-Walkers).
     """
 
-    data: mjx.Data
+    data: PhysicsData
     """The simulator state after the last step (positions and velocities computed)."""
     observation: jax.Array
     """[n, F] float32 per-limb observation of ``data``."""
@@ -91,17 +99,20 @@ class BodyEnv:
             False reproduces the reference code (docs/fidelity.md, rows 31-32): the torso reads x = 0, every
             other limb its absolute world x, and the torso's velocity is that of the point (0, y, z).
         stale_kinematics: observe the positions the last physics step left, as the original code does
-            (docs/fidelity.md, row 33; JAX physics only).
-        physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
+            (docs/fidelity.md, row 33; physics "jax" or "c").
+        physics: "jax" or "warp" (MJX, :class:`~swat_jax.envs.physics.Simulator`), "c" (MuJoCo's C
+            library, :class:`~swat_jax.envs.c_physics.CSimulator`), or "auto"
+            (:func:`~swat_jax.envs.physics.resolve_physics`: "c" on a CPU, "jax" on a GPU).
         worlds: "warp" only: the most copies one vmapped call steps, all vmap axes together.
         variants: variants of the body (:mod:`swat_jax.morphology.variants`; loaded bodies or MJCF paths),
             the same tree of limbs with other numbers. :meth:`variant_table` stacks what they change; a
             state started with one of its rows (``reset(rng, variant)``) steps that variant, through the
-            same program for every variant (physics="jax" only); a state started without one runs the
+            same program for every variant (physics "jax" or "c"); a state started without one runs the
             first variant.
 
     Raises:
-        ValueError: a variant is not the same tree of limbs, or variants with physics="warp".
+        ValueError: a variant is not the same tree of limbs, or variants or stale kinematics with
+            physics="warp".
     """
 
     def __init__(
@@ -110,13 +121,15 @@ class BodyEnv:
         *,
         torso_relative_x: bool = True,
         stale_kinematics: bool = False,
-        physics: Implementation = "jax",
+        physics: Physics = "jax",
         worlds: int = 1,
         variants: Sequence[Morphology | str | Path] = (),
     ):
-        if stale_kinematics and physics != "jax":
+        physics = resolve_physics(physics)
+        if stale_kinematics and physics == "warp":
             raise ValueError(
-                "stale_kinematics reads the positions MJX's JAX step leaves; use physics='jax' or turn it off"
+                "stale_kinematics reads the positions MuJoCo's step leaves, which Warp does not keep; use "
+                "physics='jax' or 'c', or turn it off"
             )
         self.morphology = morphology if isinstance(morphology, Morphology) else load(morphology)
         self.torso_relative_x = torso_relative_x
@@ -126,7 +139,11 @@ class BodyEnv:
         models = [compile_model(variant) for variant in self.variants] or [compile_model(self.morphology)]
         self.mj_model: mujoco.MjModel = models[0]
         """The compiled model whose numbers are the program's constants: the body's, or its first variant's."""
-        self.simulator = Simulator(self.mj_model, physics, worlds)
+        self.simulator: Simulator | CSimulator = (
+            CSimulator(models, self.morphology.name)
+            if physics == "c"
+            else Simulator(self.mj_model, physics, worlds)
+        )
         self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
         self.motor_limbs = _motor_limbs(self.morphology, self.mj_model.nu)
         self._variant_table = self._stack_variants(models) if self.variants else None
@@ -157,9 +174,11 @@ class BodyEnv:
             raise ValueError(f"{self.morphology.name}: this environment has no variants; pass variants=...")
         return self._variant_table
 
-    def _check_variants(self, physics: Implementation) -> None:
-        if self.variants and physics != "jax":
-            raise ValueError("variants of a body run on physics='jax' (their model is an input of the step)")
+    def _check_variants(self, physics: str) -> None:
+        if self.variants and physics == "warp":
+            raise ValueError(
+                "variants of a body run on physics='jax' or 'c' (their model is an input of the step)"
+            )
         nominal = self.morphology
         for variant in self.variants:
             tree = (variant.limb_names, variant.parents, variant.limb_motors, variant.joint_names)
@@ -171,10 +190,13 @@ class BodyEnv:
 
     def _stack_variants(self, models: list[mujoco.MjModel]) -> Variant:
         """The variants' rows: the model leaves in which they differ (the first variant's model holds the
-        rest as constants) and their joint ranges."""
+        rest as constants; none on physics "c", which steps each variant's own model), their joint ranges
+        and indices."""
+        fields = {} if isinstance(self.simulator, CSimulator) else differing_fields(models)
         return Variant(
-            model={path: jnp.asarray(values) for path, values in differing_fields(models).items()},
+            model={path: jnp.asarray(values) for path, values in fields.items()},
             joint_range=jnp.asarray(np.stack([variant.joint_range_array() for variant in self.variants])),
+            index=jnp.arange(len(models), dtype=jnp.int32),
         )
 
     def reset(self, rng: jax.Array, variant: Variant | None = None) -> EnvState:
@@ -187,11 +209,11 @@ class BodyEnv:
         data = self.simulate(state.data, action, state.variant)
         return self.finish_step(state, self.step_kinematics(data, state.variant))
 
-    def initial_data(self, rng: jax.Array, variant: Variant | None = None) -> mjx.Data:
+    def initial_data(self, rng: jax.Array, variant: Variant | None = None) -> PhysicsData:
         """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
         noise = self.morphology.family.reset_noise
         position_key, velocity_key = jax.random.split(rng)
-        qpos0 = self.simulator.model_with(_fields(variant)).qpos0
+        qpos0 = self.simulator.qpos0(self._row(variant))
         qpos = qpos0 + jax.random.uniform(
             position_key, (self.mj_model.nq,), minval=-noise.qpos_uniform, maxval=noise.qpos_uniform
         )
@@ -205,24 +227,24 @@ class BodyEnv:
         dtype = initial.qpos.dtype
         return initial.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
 
-    def simulate(self, data: mjx.Data, action: jax.Array, variant: Variant | None = None) -> mjx.Data:
+    def simulate(self, data: PhysicsData, action: jax.Array, variant: Variant | None = None) -> PhysicsData:
         """``frame_skip`` physics steps under ``action`` [n]; derived quantities not yet computed."""
         data = data.replace(ctrl=jnp.clip(action[self.motor_limbs], -1.0, 1.0))
-        return self.simulator.advance(data, self.morphology.frame_skip, _fields(variant))
+        return self.simulator.advance(data, self.morphology.frame_skip, self._row(variant))
 
-    def kinematics(self, data: mjx.Data, variant: Variant | None = None) -> mjx.Data:
+    def kinematics(self, data: PhysicsData, variant: Variant | None = None) -> PhysicsData:
         """Positions, orientations, sites and frame velocities computed from ``data``'s qpos and qvel."""
-        return self.simulator.derive(data, _fields(variant))
+        return self.simulator.derive(data, self._row(variant))
 
-    def step_kinematics(self, data: mjx.Data, variant: Variant | None = None) -> mjx.Data:
+    def step_kinematics(self, data: PhysicsData, variant: Variant | None = None) -> PhysicsData:
         """The kinematics a step's observation and termination read, for ``data`` just simulated:
         :meth:`kinematics`, or with ``stale_kinematics`` the positions, orientations and sites the last
         physics step left, with frame velocities from them and the new qvel (the original code's reads)."""
         if self.stale_kinematics:
-            return self.simulator.velocities(data, _fields(variant))
+            return self.simulator.velocities(data, self._row(variant))
         return self.kinematics(data, variant)
 
-    def start(self, data: mjx.Data, variant: Variant | None = None) -> EnvState:
+    def start(self, data: PhysicsData, variant: Variant | None = None) -> EnvState:
         """The state of a new episode at ``data`` (kinematics computed) of ``variant``."""
         zero = jnp.zeros((), jnp.float32)
         return EnvState(
@@ -236,7 +258,7 @@ class BodyEnv:
             variant=variant,
         )
 
-    def finish_step(self, state: EnvState, data: mjx.Data) -> EnvState:
+    def finish_step(self, state: EnvState, data: PhysicsData) -> EnvState:
         """The state after ``state`` was simulated to ``data`` (kinematics computed): reward, termination,
         truncation and observation of the step."""
         unstable = _unstable(data)
@@ -255,7 +277,13 @@ class BodyEnv:
             variant=state.variant,
         )
 
-    def _observe(self, data: mjx.Data, variant: Variant | None = None) -> jax.Array:
+    def _row(self, variant: Variant | None) -> ModelFields | jax.Array | None:
+        """What the simulator needs of ``variant``: its model fields on MJX, its index on C physics."""
+        if variant is None:
+            return None
+        return variant.index if isinstance(self.simulator, CSimulator) else variant.model
+
+    def _observe(self, data: PhysicsData, variant: Variant | None = None) -> jax.Array:
         """[n, F] float32 (whatever precision the simulation runs in)."""
         limbs = slice(1, self.num_limbs + 1)
         layout = self.layout if variant is None else self.layout._replace(joint_range=variant.joint_range)
@@ -277,7 +305,7 @@ class BodyEnv:
             reward.forward_weight * forward + reward.alive_bonus - reward.control_cost * jnp.sum(control**2)
         )
 
-    def alive(self, data: mjx.Data) -> jax.Array:
+    def alive(self, data: PhysicsData) -> jax.Array:
         """[] bool: every termination condition of the body holds (the family's termination, morphology/families.py); ``data``
         may also be MuJoCo C's ``MjData`` (qpos, qvel and site_xpos are read)."""
         termination = self.morphology.family.termination
@@ -296,11 +324,7 @@ class BodyEnv:
         return alive
 
 
-def _fields(variant: Variant | None) -> ModelFields | None:
-    return None if variant is None else variant.model
-
-
-def _unstable(data: mjx.Data) -> jax.Array:
+def _unstable(data: PhysicsData) -> jax.Array:
     """[] bool: the state is not finite or some joint moves faster than EXPLOSION_SPEED."""
     finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
     return ~finite | jnp.any(jnp.abs(data.qvel) > EXPLOSION_SPEED)

@@ -36,7 +36,7 @@ import numpy as np
 from flax import struct
 
 from swat_jax.envs.body import BodyEnv, EnvState, Variant
-from swat_jax.envs.physics import Implementation
+from swat_jax.envs.physics import Physics
 from swat_jax.morphology.mjcf import load
 from swat_jax.morphology.types import Morphology
 
@@ -109,7 +109,7 @@ class MultiTaskEnv:
         copies: n, parallel copies of each body.
         max_limbs: L, the padded limb count; defaults to the largest body's.
         torso_relative_x, stale_kinematics: see :class:`~swat_jax.envs.body.BodyEnv`.
-        physics: MJX implementation, "jax" or "warp" (:class:`~swat_jax.envs.physics.Simulator`).
+        physics: "jax", "warp", "c" or "auto" (:class:`~swat_jax.envs.body.BodyEnv`).
         runs: how many instances of this environment one program steps (seeds: a leading run axis of the
             state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
             per call (a step derives the stepped and the fresh copies together).
@@ -131,7 +131,7 @@ class MultiTaskEnv:
         max_limbs: int | None = None,
         torso_relative_x: bool = True,
         stale_kinematics: bool = False,
-        physics: Implementation = "jax",
+        physics: Physics = "jax",
         runs: int = 1,
         lock_step: bool = False,
         variants: Sequence[Sequence[Morphology | str]] = (),
@@ -181,8 +181,8 @@ class MultiTaskEnv:
         """What a program of these environments is traced from besides its arguments, the key of
         :func:`swat_jax.compilation_cache.compile_cached`: copies, padding, the observation's frame and,
         per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary MJB: every size,
-        parameter and asset). None with Warp physics: its programs call kernels that this process registers
-        and cannot be loaded by another."""
+        parameter and asset). None with Warp or C physics: their programs call kernels or callbacks that
+        this process registers and cannot be loaded by another."""
         if any(env.simulator.implementation != "jax" for env in self.envs):
             return None
         return (

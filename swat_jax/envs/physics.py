@@ -1,4 +1,5 @@
-"""Physics on MJX: :class:`Simulator` holds one body's model and steps it on MJX's JAX or Warp implementation.
+"""Physics on MJX: :class:`Simulator` holds one body's model and steps it on MJX's JAX or Warp implementation
+(MuJoCo's C library is :mod:`swat_jax.envs.c_physics`, with the same interface).
 
 JAX (the default) compiles the whole physics into the XLA program. Its step, with ``integrator="RK4"``,
 is :func:`rk4_step`, which compiles a third as long as ``mjx.step``'s:
@@ -32,9 +33,30 @@ import numpy as np
 
 from swat_jax.envs.quiet_mjx import mjx
 
-Implementation = Literal["jax", "warp"]
-IMPLEMENTATIONS: tuple[Implementation, ...] = ("jax", "warp")
-"""MJX implementations a :class:`Simulator` runs on."""
+Implementation = Literal["jax", "warp", "c"]
+"""Where a body's physics runs: MJX's JAX implementation (compiled into the XLA program), MJX's Warp
+implementation (MuJoCo Warp kernels called from it), or MuJoCo's C library through a host callback
+(:mod:`swat_jax.envs.c_physics`)."""
+IMPLEMENTATIONS: tuple[Implementation, ...] = ("jax", "warp", "c")
+Physics = Literal["auto", "jax", "warp", "c"]
+"""An implementation, or ``auto``: :func:`resolve_physics` picks one for the machine."""
+PHYSICS: tuple[Physics, ...] = ("auto", *IMPLEMENTATIONS)
+
+
+def resolve_physics(physics: Physics) -> Implementation:
+    """``physics`` itself, or for ``auto``: ``c`` where JAX's default backend is the CPU (MuJoCo C steps
+    there many times faster than MJX and compiles nothing), ``jax`` where it is an accelerator (MJX steps
+    thousands of copies in parallel there).
+
+    Raises:
+        ValueError: not one of :data:`PHYSICS`.
+    """
+    if physics not in PHYSICS:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
+    if physics != "auto":
+        return physics
+    return "c" if jax.default_backend() == "cpu" else "jax"
+
 
 RK4_NEXT_OFFSETS = np.array([0.5, 0.5, 1.0, 0.0])
 """Fraction of dt at which the next stage evaluates the derivative, from this stage's derivative (the first
@@ -155,8 +177,8 @@ class Simulator:
     """
 
     def __init__(self, mj_model: mujoco.MjModel, implementation: Implementation = "jax", worlds: int = 1):
-        if implementation not in IMPLEMENTATIONS:
-            raise ValueError(f"physics must be one of {', '.join(IMPLEMENTATIONS)}, got {implementation!r}")
+        if implementation not in ("jax", "warp"):
+            raise ValueError(f"MJX runs physics 'jax' or 'warp', got {implementation!r}")
         if worlds < 1:
             raise ValueError(f"worlds must be at least 1, got {worlds}")
         self.implementation = implementation
@@ -201,6 +223,10 @@ class Simulator:
         after :meth:`advance`, those the last physics step left, i.e. the Jacobians of that step's last
         ``forward`` (the previous state for Euler, :func:`rk4_step`'s last stage) times the new qvel."""
         return mjx.com_vel(self.model_with(fields), data)
+
+    def qpos0(self, fields: ModelFields | None = None) -> jax.Array:
+        """[nq] reference pose of the body (of a variant with ``fields``)."""
+        return self.model_with(fields).qpos0
 
     def model_with(self, fields: ModelFields | None) -> mjx.Model:
         """The device model, with a variant's ``fields`` in place of the nominal values (JAX only)."""

@@ -20,7 +20,9 @@ leaves the previous checkpoint intact.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +39,10 @@ ERROR_LOG = "checkpoint_error.log"
 """File in the run directory that holds the whole error of the last unreadable checkpoint."""
 TENSORSTORE_DETAIL = "See full TensorStore details"
 """Where TensorStore's read errors start appending their whole spec (dozens of lines)."""
+ORBAX_DIR = Path(ocp.__file__).parent
+"""Orbax's source folder: the coroutines of a failed restore that are closed unfinished are defined there."""
+CLOSED_LOOP = "Event loop is closed"
+"""What TensorStore's callback of a read that ends after its restore failed raises on the closed loop."""
 
 
 class CheckpointError(RuntimeError):
@@ -212,13 +218,25 @@ class Checkpoints:
         return self.directory / str(step)
 
     def _read(self, step: int, **items: Any) -> Any:
+        """The ``items`` of checkpoint ``step``; CheckpointError if any is unreadable.
+
+        A read that fails leaves Orbax's other reads of the step in flight on an event loop Orbax closes:
+        each reports, when it ends or is garbage collected, an exception nobody can catch (TensorStore's
+        "Event loop is closed", on its own threads, for as long as the process runs). Those reports are
+        dropped (:class:`AbandonedReadsFilter`), from the restore on, and after a failed one for good.
+        """
+        previous = sys.unraisablehook
+        if not isinstance(previous, AbandonedReadsFilter):
+            sys.unraisablehook = AbandonedReadsFilter(previous)
         try:
-            return self.manager.restore(step, args=ocp.args.Composite(**items))
+            restored = self.manager.restore(step, args=ocp.args.Composite(**items))
         except Exception as error:
             raise CheckpointError(
                 f"{self._path(step)} is unreadable ({_summary(error)}); delete that folder to fall back to "
                 f"the previous checkpoint. {self._log_error(step, error)}"
             ) from error
+        sys.unraisablehook = previous
+        return restored
 
     def _log_error(self, step: int, error: Exception) -> str:
         """Write the whole of ``error`` (TensorStore's runs to a screen or more) to ERROR_LOG; say where."""
@@ -229,6 +247,28 @@ class Checkpoints:
         except OSError as write_error:
             return f"(The full error could not be written to {log}: {write_error})"
         return f"The full error is in {log}"
+
+
+class AbandonedReadsFilter:
+    """A ``sys.unraisablehook`` that drops what the reads of a failed restore report after it, and passes
+    everything else on to ``hook``: TensorStore's callbacks of reads that end on the closed event loop
+    (RuntimeError "Event loop is closed", no object), and the exceptions Orbax's unfinished read coroutines
+    raise when they are closed (the coroutine as object)."""
+
+    def __init__(self, hook: Callable[[Any], object]):
+        self.hook = hook
+
+    def __call__(self, unraisable: sys.UnraisableHookArgs) -> None:
+        if not _abandoned_read(unraisable):
+            self.hook(unraisable)
+
+
+def _abandoned_read(unraisable: sys.UnraisableHookArgs) -> bool:
+    """Whether ``unraisable`` is reported by a read of a failed restore (see :class:`AbandonedReadsFilter`)."""
+    if unraisable.object is None:
+        return isinstance(unraisable.exc_value, RuntimeError) and str(unraisable.exc_value) == CLOSED_LOOP
+    code = getattr(unraisable.object, "cr_code", None)
+    return code is not None and Path(code.co_filename).is_relative_to(ORBAX_DIR)
 
 
 def _summary(error: Exception) -> str:

@@ -28,7 +28,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from swat_jax.envs.physics import Implementation
+from swat_jax.envs.physics import PHYSICS, Physics
 from swat_jax.morphology import SETS, get_set, load
 from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
@@ -129,8 +129,8 @@ class TrainConfig:
     """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     limb_buckets: int = 3
     """With --iteration.schedule all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
-    physics: Implementation = "jax"
-    """MJX implementation: jax (the physics compiled into the XLA program) or warp (MuJoCo Warp kernels called from it: compiles in seconds, needs pip install -e '.[warp]'; README "How fast")."""
+    physics: Physics = "auto"
+    """Where the physics runs: c (MuJoCo's C library, called from the jitted program: nothing to compile, the fastest on a CPU), jax (MJX compiled into the XLA program: for GPUs), warp (MuJoCo Warp kernels called from it; needs pip install -e '.[warp]'), or auto: c where JAX runs on the CPU, jax on a GPU (docs/training.md, "Physics")."""
     torso_relative_x: bool = False
     """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
     reference_inorder: bool = True
@@ -213,14 +213,17 @@ class TrainConfig:
             raise ConfigError(
                 f"--variation must lie in [0, 1) (factors stay positive), got {self.variation}"
             ) from None
-        if self.variants and self.physics != "jax":
+        if self.physics not in PHYSICS:
+            raise ConfigError(f"--physics must be one of {', '.join(PHYSICS)}, got {self.physics!r}")
+        if self.variants and self.physics == "warp":
             raise ConfigError(
-                "--variants runs on --physics jax (the variants' numbers are inputs of its step)"
+                "--variants runs on --physics c, jax or auto (the variants' numbers are inputs of the step; "
+                "Warp's model is not)"
             )
-        if self.stale_kinematics and self.physics != "jax":
+        if self.stale_kinematics and self.physics == "warp":
             raise ConfigError(
-                f"--stale-kinematics reads what MJX's JAX step leaves and does not run on --physics {self.physics}; "
-                "add --no-stale-kinematics"
+                "--stale-kinematics reads what MuJoCo's step leaves, which Warp does not keep; add "
+                "--no-stale-kinematics or use --physics c, jax or auto"
             )
         try:
             self.network()

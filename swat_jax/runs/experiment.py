@@ -15,6 +15,7 @@ import numpy as np
 
 from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
 from swat_jax.envs.multi_task import MultiTaskEnv
+from swat_jax.envs.physics import resolve_physics
 from swat_jax.morphology import Morphology, limb_buckets
 from swat_jax.morphology.variants import Variation, write_variants
 from swat_jax.networks import (
@@ -224,7 +225,7 @@ def make_env(
     settings = dict(
         torso_relative_x=config.torso_relative_x,
         stale_kinematics=config.stale_kinematics,
-        physics=config.physics,
+        physics=resolve_physics(config.physics),
         runs=runs,
         lock_step=lock_step,
     )

@@ -1,0 +1,348 @@
+"""Time to a trained policy: machine seconds per seed for swat_jax's configurations to reach the original
+SWAT trainer's final return, beside the original's own.
+
+    python experiments/time_to_return.py [--sets hopper walker] [--scale small] [--candidates paper fast]
+        [--seeds 4] [--window 3] [--original-from experiments/results/against_original] [--out DIR] [--dry-run]
+
+On one environment set, at a scale of experiments/against_original.py (the same network sizes, learning
+rate, random-start steps, replay size and step budget as the original trainer's runs), the script trains
+each candidate configuration of swat_jax with every seed in one program, and reads the original's
+curves from its committed runs (``--original-from``: ``original/<set>-seed<k>/`` with its ``stat.json``
+and trainer log, as against_original.py writes them; run that script with ``--only original`` for new
+ones).
+
+Two x axes:
+
+- counted environment steps, summed over bodies (the original's budget and curves count these);
+- machine seconds per seed: wall clock x cores used / seeds run at once, start-up and compilation
+  included. The original runs one seed per process on one core (torch with one thread), so its machine
+  seconds per seed are its own wall clock; swat_jax runs every seed in one program on all
+  ``host_cores()`` cores.
+
+R is the original's final return (the mean over seeds of each seed's mean over the points of the
+budget's last 20%, as against_original.py). A curve reaches R at its first point where the mean over
+seeds, smoothed by a trailing mean over ``--window`` points, is at least R; a curve that never does is
+reported as "not reached" with its last point's time as a lower bound. The original's own time to R is
+measured the same way on its own curve, or, where its smoothed curve stays just below its final return
+(which averages the budget's last 20%), is its time at the budget. Per candidate: the machine seconds per seed to R, its ratio to
+the original's, the final return at the original's budget with Welch's two-sided t-test against the
+original's seeds.
+
+Written to OUT (default experiments/results/time_to_return): ``<set>.png`` (the mean return over bodies
+against both x axes, mean ± standard error over seeds, R dashed), ``<set>.csv`` (every plotted number),
+``time_to_return.md`` (the table), ``timings.json`` (each run's wall clock). A partial run resumes: a
+run that reached its budget is kept, one that stopped part-way resumes from its newest checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import datetime
+import math
+import shlex
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from against_original import (
+    SCALES,
+    Final,
+    SeedCurves,
+    Settings,
+    final_returns,
+    original_curves,
+    original_runs,
+    ours,
+    ours_curves,
+    welch,
+)
+from machine import cpu_model, host_cores, software_versions
+from paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
+
+from swat_jax.compilation_cache import enable_caches
+from swat_jax.morphology import get_set
+from swat_jax.plot import new_figure, save
+from swat_jax.runs.metrics import read_metrics
+
+ORIGINAL = "original (PyTorch)"
+CANDIDATES: dict[str, tuple[str, ...]] = {
+    "paper": (),
+    "fast": ("--preset", "fast"),
+}
+"""swat_jax configurations by name: ``paper`` is against_original.py's run (the paper preset in lock-step
+rounds, its budget in stored steps); every other is ``--preset ...`` flags on top of the scale's sizes and
+hyperparameters, trained for the original's budget."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Curve:
+    """One configuration's seeds on the grid: {counted steps: return} per seed (mean over bodies) and
+    {counted steps: machine seconds per seed}."""
+
+    name: str
+    returns: tuple[dict[int, float], ...]
+    seconds: tuple[dict[int, float], ...]
+    finals: Final
+
+    def points(self) -> list[tuple[int, float, float, float]]:
+        """(steps, machine seconds per seed, mean return, standard error) at every step where a seed has a
+        value: the means over the seeds that have one."""
+        rows = []
+        for step in sorted({step for curve in self.returns for step in curve}):
+            values = np.array([curve[step] for curve in self.returns if step in curve])
+            seconds = [s[step] for s in self.seconds if step in s]
+            error = float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
+            rows.append((step, float(np.mean(seconds)), float(np.mean(values)), error))
+        return rows
+
+
+def smoothed_crossing(points: Sequence[tuple[int, float, float, float]], target: float, window: int):
+    """The first point (steps, seconds) at which the trailing mean of the mean return over ``window``
+    points (fewer at the start) reaches ``target``; None if none does."""
+    means = [mean for _, _, mean, _ in points]
+    for index, (step, seconds, _, _) in enumerate(points):
+        recent = means[max(0, index - window + 1) : index + 1]
+        if np.mean(recent) >= target:
+            return step, seconds
+    return None
+
+
+def machine_seconds(curves: Sequence[SeedCurves], cores: float, seeds_at_once: int) -> tuple[dict, ...]:
+    """Each seed's wall clock at its grid points as machine seconds per seed."""
+    return tuple({step: t * cores / seeds_at_once for step, t in c.seconds.items()} for c in curves)
+
+
+def candidate_run(out: Path, settings: Settings, environment_set: str, name: str) -> RunSpec:
+    """The swat_jax run of candidate ``name``: the scale's sizes and hyperparameters, every seed in one
+    program, a metrics row at least every curve interval."""
+    if name not in CANDIDATES:
+        raise GridError(f"unknown candidate {name!r}; candidates: {', '.join(CANDIDATES)}")
+    if name == "paper":
+        base = ours(out, settings, environment_set)
+        return RunSpec(out / "runs" / f"{environment_set}-paper", base.flags)
+    s = settings
+    flags = (
+        f"--env {environment_set} --algo swat --seeds {s.seeds} --steps {s.budget(environment_set)} "
+        f"--width {s.width} --heads {s.heads} --layers {s.layers} --feedforward {s.feedforward} "
+        f"--iteration.random-steps {s.random_steps} --iteration.capacity {s.capacity} "
+        f"--td3.learning-rate {s.learning_rate} --log-interval {s.log_interval(environment_set)} "
+        f"--checkpoint-interval {s.log_interval(environment_set) * 4}"
+    ).split()
+    return RunSpec(out / "runs" / f"{environment_set}-{name}", (*CANDIDATES[name], *flags))
+
+
+def candidate_curve(
+    out: Path, settings: Settings, environment_set: str, name: str, timings: Mapping[str, float]
+) -> Curve | None:
+    run = candidate_run(out, settings, environment_set, name)
+    if not (run.run_dir / "metrics.csv").is_file():
+        return None
+    curves = ours_curves(read_metrics(run.run_dir), settings, environment_set, timings.get(run.name))
+    return Curve(
+        name,
+        tuple(c.mean_over_bodies() for c in curves),
+        machine_seconds(curves, host_cores(), len(curves)),
+        final_returns(curves, settings, environment_set),
+    )
+
+
+def original_curve(original_out: Path, settings: Settings, environment_set: str) -> Curve | None:
+    runs = [run for run in original_runs(original_out, settings, environment_set) if run.finished()]
+    if not runs:
+        return None
+    curves = [original_curves(run) for run in runs]
+    return Curve(
+        ORIGINAL,
+        tuple(c.mean_over_bodies() for c in curves),
+        machine_seconds(curves, 1, 1),
+        final_returns(curves, settings, environment_set),
+    )
+
+
+def figure(curves: Sequence[Curve], target: float, title: str, path: Path) -> None:
+    """Mean return over bodies against counted steps and against machine seconds per seed."""
+    fig = new_figure()
+    axes = fig.subplots(1, 2)
+    for index, curve in enumerate(curves):
+        points = curve.points()
+        steps, seconds, means, errors = (np.array(column) for column in zip(*points, strict=True))
+        errors = np.nan_to_num(errors)
+        for ax, x in zip(axes, (steps, seconds), strict=True):
+            ax.plot(x, means, color=f"C{index}", label=curve.name)
+            ax.fill_between(x, means - errors, means + errors, color=f"C{index}", alpha=0.2)
+    for ax, label in zip(
+        axes, ("counted environment steps (all bodies)", "machine seconds per seed"), strict=True
+    ):
+        ax.axhline(target, color="k", linestyle="--", linewidth=1, label=f"R = {target:.1f}")
+        ax.set_xlabel(label)
+        ax.set_ylabel("return (training episodes, mean over bodies)")
+        ax.set_title(title)
+        ax.legend()
+    fig.set_size_inches(12, 4.5)
+    save(fig, path)
+
+
+def write_csv(curves: Sequence[Curve], path: Path) -> None:
+    with path.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(
+            ["configuration", "counted_steps", "machine_seconds_per_seed", "mean_return", "standard_error"]
+        )
+        for curve in curves:
+            for row in curve.points():
+                writer.writerow([curve.name, *row])
+
+
+def set_section(
+    out: Path, original_out: Path, settings: Settings, environment_set: str, names: Sequence[str], window: int
+) -> list[str]:
+    """Figure, CSV and the Markdown section of one set."""
+    timings = read_timings(out)
+    original = original_curve(original_out, settings, environment_set)
+    if original is None:
+        raise GridError(
+            f"no finished original runs of {environment_set} at scale {settings.name} in {original_out}/original; "
+            "run experiments/against_original.py --only original, or give --original-from"
+        )
+    candidates = [
+        c for name in names if (c := candidate_curve(out, settings, environment_set, name, timings))
+    ]
+    target = original.finals.mean
+    label = get_set(environment_set).description or environment_set
+    curves = [original, *candidates]
+    figure(curves, target, f"{label}, {settings.seeds} seeds", out / f"{environment_set}.png")
+    write_csv(curves, out / f"{environment_set}.csv")
+    reference = smoothed_crossing(original.points(), target, window) or original.points()[-1][:2]
+    lines = [
+        f"## {label}, {settings.budget(environment_set):,} steps",
+        "",
+        f"![{environment_set}]({environment_set}.png)",
+        "",
+        f"R = {target:.1f}, the original's final return. Every plotted number: [{environment_set}.csv]"
+        f"({environment_set}.csv).",
+        "",
+        "| configuration | seeds | machine s per seed to R | ratio to the original | steps to R | final return at the budget | Welch p against the original |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for curve in curves:
+        crossing = reference if curve is original else smoothed_crossing(curve.points(), target, window)
+        last_seconds = curve.points()[-1][1]
+        if crossing is None:
+            seconds, ratio, steps = f"not reached (> {last_seconds:.0f})", "-", "-"
+        else:
+            seconds, steps = f"{crossing[1]:.0f}", f"{crossing[0]:,}"
+            ratio = f"{crossing[1] / reference[1]:.2f}"
+        p = "-" if curve is original else f"{welch(curve.finals, original.finals):.3f}"
+        lines.append(
+            f"| {curve.name} | {len(curve.returns)} | {seconds} | {ratio} | {steps} | "
+            f"{curve.finals.mean:.1f} ± {curve.finals.standard_error:.1f} | {p} |"
+        )
+    return lines
+
+
+def report(
+    out: Path,
+    original_out: Path,
+    settings: Settings,
+    sets: Sequence[str],
+    names: Sequence[str],
+    window: int,
+    argv,
+) -> Path:
+    versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
+    s = settings
+    lines = [
+        f"# Time to the original's final return, scale {s.name}",
+        "",
+        f"- Command: `python experiments/time_to_return.py {shlex.join(argv)}`",
+        f"- Date: {datetime.date.today().isoformat()}",
+        f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
+        f"- Every run: SWAT of width {s.width}, {s.heads} heads, {s.layers} layers, feed-forward {s.feedforward}; "
+        f"learning rate {s.learning_rate}; {s.random_steps:,} random-action steps per body; replay "
+        f"{s.capacity:,} per body; {s.seeds} seeds. The original: its committed runs in {original_out}, one "
+        "process per seed on one core. swat_jax: every seed in one program on all cores.",
+        f"- Machine seconds per seed: wall clock x cores used / seeds at once, start-up and compilation "
+        f"included. A curve reaches R at its first point where the mean over seeds, smoothed by a trailing "
+        f"mean over {window} points, is at least R (the original: that point, or its budget's end if its "
+        "smoothed curve stays below its own final return).",
+        "",
+    ]
+    for environment_set in sets:
+        lines += [*set_section(out, original_out, settings, environment_set, names, window), ""]
+    path = out / "time_to_return.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/time_to_return.py",
+        description=__doc__.split("\n\n")[0],
+        epilog="A partial run resumes: the same command goes on where it stopped.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--sets",
+        nargs="+",
+        default=["hopper", "walker"],
+        metavar="SET",
+        help="environment sets (default hopper walker)",
+    )
+    parser.add_argument(
+        "--scale", choices=tuple(SCALES), default="small",
+        help="against_original.py's scale: the sizes, hyperparameters and budget of the original's runs (default small)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--candidates", nargs="+", default=list(CANDIDATES), metavar="NAME",
+        help=f"swat_jax configurations to train, of {', '.join(CANDIDATES)} (default all)",
+    )  # fmt: skip
+    parser.add_argument("--seeds", type=int, help="seeds of every configuration (default: the scale's)")
+    parser.add_argument(
+        "--window", type=int, default=3,
+        help="curve points of the trailing mean that must reach R (default 3)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--original-from", type=Path, default=Path("experiments/results/against_original"),
+        help="the folder whose original/<set>-seed<k>/ hold the original's runs (default experiments/results/against_original)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("experiments/results/time_to_return"),
+        help="runs, figures and the report",
+    )
+    parser.add_argument("--dry-run", action="store_true", help="print the commands of the runs and stop")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    enable_caches()
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser().parse_args(argv)
+
+    def work() -> Path | None:
+        settings = SCALES[args.scale]
+        if args.seeds is not None:
+            if args.seeds < 1:
+                raise GridError(f"--seeds must be 1 or more, got {args.seeds}")
+            settings = dataclasses.replace(settings, seeds=args.seeds)
+        if args.window < 1:
+            raise GridError(f"--window must be 1 or more, got {args.window}")
+        runs = [candidate_run(args.out, settings, s, name) for s in args.sets for name in args.candidates]
+        if args.dry_run:
+            for run in runs:
+                steps = progress(run)
+                state = "new" if steps is None else f"resumes at {steps:,} steps"
+                print(f"python {shlex.join(run.command()[1:])}  # {state}")
+            return None
+        train_all(runs, args.out)
+        return report(args.out, args.original_from, settings, args.sets, args.candidates, args.window, argv)
+
+    return exit_status(work)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,78 @@
+"""experiments/time_to_return.py: the smoothed crossing of R, machine seconds per seed, and the whole
+benchmark at micro scale against original runs written as the original's tools leave them."""
+
+import csv
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "experiments"))
+
+import against_original as against  # noqa: E402
+import time_to_return as ttr  # noqa: E402
+from test_against_original import write_original_seed  # noqa: E402
+
+MICRO = against.SCALES["micro"]
+
+
+def test_the_crossing_is_the_first_point_whose_trailing_mean_reaches_r():
+    points = [(100, 10.0, 0.0, 0.0), (200, 20.0, 50.0, 0.0), (300, 30.0, 40.0, 0.0), (400, 40.0, 60.0, 0.0)]
+    assert ttr.smoothed_crossing(points, 45.0, 1) == (200, 20.0), "unsmoothed: the first spike counts"
+    assert ttr.smoothed_crossing(points, 45.0, 2) == (300, 30.0), "mean of 50 and 40"
+    assert ttr.smoothed_crossing(points, 55.0, 2) is None, "never: the last two points average 50"
+
+
+def test_machine_seconds_per_seed_charge_every_core_to_the_seeds_run_at_once():
+    seeds = [
+        against.SeedCurves({"a": {300: 1.0}}, {300: 100.0}),
+        against.SeedCurves({"a": {300: 2.0}}, {300: 120.0}),
+    ]
+    assert ttr.machine_seconds(seeds, 2, 4) == ({300: 50.0}, {300: 60.0}), "4 seeds on 2 cores"
+    assert ttr.machine_seconds(seeds, 1, 1) == ({300: 100.0}, {300: 120.0}), "one seed on one core"
+
+
+def test_an_unknown_candidate_is_refused(tmp_path, capsys):
+    status = ttr.main(["--dry-run", "--scale", "micro", "--candidates", "fastest", "--out", str(tmp_path)])
+    assert status == 2 and "unknown candidate 'fastest'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
+    """A fast-preset candidate sized for the micro budget (3 bodies x 2 copies x 50 steps per iteration)
+    beside two original seeds whose final return R is 19.5 (their points at 600 steps): the report has
+    both, the figure and the CSV their lines, and a second call keeps the finished run."""
+    monkeypatch.setitem(
+        ttr.CANDIDATES,
+        "fast",
+        ("--preset", "fast", "--copies", "2", "--iteration.chunk", "50", "--iteration.updates", "4"),
+    )
+    original_out = tmp_path / "against"
+    for seed, run in enumerate(against.original_runs(original_out, MICRO, "hopper")):
+        rewards = [10.0 + seed, 20.0 + seed, 20.0 - seed]
+        write_original_seed(
+            run,
+            [150, 300, 600],
+            dict.fromkeys(("hopper_3", "hopper_4", "hopper_5"), rewards),
+            [30.0, 60.0, 90.0],
+        )
+    out = tmp_path / "out"
+    argv = ["--scale", "micro", "--sets", "hopper", "--candidates", "fast", "--window", "1"]
+    argv += ["--original-from", str(original_out), "--out", str(out)]
+    assert ttr.main(argv) == 0
+    report = (out / "time_to_return.md").read_text()
+    assert "R = 19.5" in report
+    # The original's own curve: 15.5 at 300 (each seed's two rounds there averaged), 19.5 at 600 (90 s).
+    assert f"| {ttr.ORIGINAL} | 2 | 90 | 1.00 | 600 | 19.5 ± 0.5 | - |" in report
+    assert "| fast | 2 |" in report
+    with (out / "hopper.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    assert {row["configuration"] for row in rows} == {ttr.ORIGINAL, "fast"}
+    fast = [row for row in rows if row["configuration"] == "fast"]
+    assert [int(row["counted_steps"]) for row in fast] == [300, 600]
+    assert float(fast[0]["machine_seconds_per_seed"]) > 0
+    assert (out / "hopper.png").stat().st_size > 10_000
+    capsys.readouterr()
+    assert ttr.main(argv) == 0
+    assert "done (600 steps), kept" in capsys.readouterr().err
