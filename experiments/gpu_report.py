@@ -12,7 +12,11 @@ One run measures, each configuration in a fresh process (its compilation and mem
    them cold anywhere).
 3. TD3 update throughput of the paper-sized SWAT (Table 1) on Animal-Walkers and CWHH++: batch 100 per
    body, all bodies in one vmapped update (:func:`update_benchmark.vmapped_throughput`).
-4. Peak device memory and peak RSS of every configuration; the device, the host, the software versions.
+4. Time to return: ``train_presets`` trained on ``train_set`` (paper sizes, ``train_seeds`` seeds in one
+   program) for ``train_seconds`` each, in a subprocess stopped with Ctrl-C's signal (the run checkpoints
+   and exits): seconds to the first metrics row (start-up and compilation), environment steps per second
+   per seed, and the mean return over seeds of the training episodes against wall clock, row by row.
+5. Peak device memory and peak RSS of every configuration; the device, the host, the software versions.
 
 The whole run keeps to ``--budget`` seconds (420 by default, well inside 9 minutes on an H100 or H200
 once the image has started): a run stops when the budget ends, and a configuration expected to take
@@ -29,11 +33,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import signal
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from env_benchmark import (
     WORKERS,
     WorkerError,
@@ -54,6 +62,7 @@ from update_benchmark import vmapped_throughput
 from swat_jax.cli import strict_json
 from swat_jax.compilation_cache import cache_directory, enable_caches
 from swat_jax.networks import network_config
+from swat_jax.runs.metrics import read_metrics
 
 MIN_GAIN = 1.05
 """A set's copy sweep stops once steps/s grows by less than this factor over the previous count."""
@@ -88,6 +97,16 @@ class ReportSettings:
     """Updates per timed call (scanned in one jit)."""
     budget_s: float
     """Seconds the whole report may take."""
+    train_set: str = "hopper"
+    """Set the presets train on for the time-to-return rows."""
+    train_presets: tuple[str, ...] = ("paper", "fast")
+    """Presets trained for ``train_seconds`` each (none: no training rows)."""
+    train_seeds: int = 5
+    """Seeds in each training program."""
+    train_seconds: float = 90.0
+    """Wall seconds of each training run, start-up included."""
+    train_flags: tuple[str, ...] = ()
+    """More ``swat_jax.train`` flags of every training run (none: the preset's paper-sized network)."""
 
 
 FULL = ReportSettings(
@@ -115,7 +134,15 @@ TINY = ReportSettings(
     batch=8,
     updates=2,
     budget_s=300.0,
-)
+    train_presets=("fast",),
+    train_seeds=2,
+    train_seconds=30.0,
+    train_flags=(
+        "--width", "16", "--heads", "1", "--layers", "1", "--feedforward", "32", "--copies", "2",
+        "--iteration.chunk", "10", "--iteration.updates", "2", "--iteration.random-steps", "20",
+        "--iteration.capacity", "2000", "--td3.batch-size", "8", "--log-interval", "60",
+    ),
+)  # fmt: skip
 
 
 def update_worker(
@@ -126,7 +153,60 @@ def update_worker(
     return {**result, **peak_memory()}
 
 
-REPORT_WORKERS = {**WORKERS, "update": update_worker}
+def training_worker(
+    set_name: str, preset: str, seeds: int, seconds: float, flags: list[str]
+) -> dict[str, Any]:
+    """Train ``preset`` on ``set_name`` for ``seconds`` of wall clock (then SIGINT: the run checkpoints and
+    exits) and read its metrics: per row, the wall seconds since the command started (the rows' own
+    steps per second, the start-up before the first row included), steps per seed and the mean return
+    over seeds of the training episodes."""
+    with tempfile.TemporaryDirectory(prefix="gpu_report_train_") as folder:
+        run_dir = Path(folder) / "run"
+        command = [
+            sys.executable, "-m", "swat_jax.train", "--preset", preset, "--env", set_name, "--seeds", str(seeds),
+            "--steps", "100000000", "--checkpoint-interval", "100000000", "--run-dir", str(run_dir), *flags,
+        ]  # fmt: skip
+        start = time.perf_counter()
+        process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            process.wait(timeout=seconds)
+        except subprocess.TimeoutExpired:
+            process.send_signal(signal.SIGINT)
+            process.wait()
+        wall = time.perf_counter() - start
+        errors = process.stderr.read() if process.stderr else ""
+        if process.returncode != 0 or not (run_dir / "metrics.csv").is_file():
+            raise WorkerError(f"training {preset} exited with {process.returncode}: {errors[-2000:]}")
+        rows = read_metrics(run_dir)
+    by_steps: dict[float, list[dict[str, float]]] = {}
+    for row in rows:
+        by_steps.setdefault(row["env_steps"], []).append(row)
+    steps = sorted(by_steps)
+    windows = np.cumsum(
+        [(b - a) / by_steps[b][0]["steps_per_second"] for a, b in zip([0.0, *steps[:-1]], steps, strict=True)]
+    )
+    startup = wall - windows[-1]
+    curve = [
+        {
+            "seconds": startup + float(window),
+            "env_steps_per_seed": step,
+            "mean_return": float(np.nanmean([row["mean_return"] for row in by_steps[step]])),
+        }
+        for step, window in zip(steps, windows, strict=True)
+    ]
+    return {
+        "set": set_name,
+        "preset": preset,
+        "seeds": seeds,
+        "wall_s": wall,
+        "first_row_s": curve[0]["seconds"],
+        "env_steps_per_second_per_seed": steps[-1] / windows[-1],
+        "curve": curve,
+        **peak_memory(),
+    }
+
+
+REPORT_WORKERS = {**WORKERS, "update": update_worker, "training": training_worker}
 
 
 class Budget:
@@ -208,6 +288,33 @@ def update_row(set_name: str, settings: ReportSettings, budget: Budget, started:
     return row
 
 
+def training_rows(
+    settings: ReportSettings, budget: Budget, started: float
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Every preset's time-to-return row, and what did not fit in the budget."""
+    rows, not_measured = [], []
+    for preset in settings.train_presets:
+        progress(
+            f"{display_name(settings.train_set)}: training {preset} for {settings.train_seconds:.0f} s",
+            started,
+        )
+        spec = {
+            "kind": "training",
+            "set_name": settings.train_set,
+            "preset": preset,
+            "seeds": settings.train_seeds,
+            "seconds": settings.train_seconds,
+            "flags": list(settings.train_flags),
+        }
+        try:
+            rows.append(budget.run(spec, "training"))
+        except WorkerError as error:
+            if not error.timed_out:
+                raise
+            not_measured.append(f"{display_name(settings.train_set)}: training {preset}, out of time")
+    return rows, not_measured
+
+
 def measure_report(settings: ReportSettings, command: str) -> dict[str, Any]:
     """Every measurement of ``settings``, as the report's JSON object."""
     started = time.perf_counter()
@@ -227,7 +334,13 @@ def measure_report(settings: ReportSettings, command: str) -> dict[str, Any]:
                     raise
                 reason = "out of time" if error.timed_out else "out of memory"
                 not_measured.append(f"{display_name(set_name)}: TD3 update, {reason}")
-    peaks = [row["device_peak_gib"] for row in environment + updates if row["device_peak_gib"] is not None]
+    training, not_trained = training_rows(settings, budget, started)
+    not_measured += not_trained
+    peaks = [
+        row["device_peak_gib"]
+        for row in environment + updates + training
+        if row["device_peak_gib"] is not None
+    ]
     return {
         "command": command,
         "settings": dataclasses.asdict(settings),
@@ -245,6 +358,7 @@ def measure_report(settings: ReportSettings, command: str) -> dict[str, Any]:
         "environment": environment,
         "sweep_stops": stops,
         "td3_update": updates,
+        "training": training,
         "peak_device_memory_gib": max(peaks, default=None),
         "not_measured": not_measured,
         "total_s": time.perf_counter() - started,
@@ -283,6 +397,23 @@ def update_table(report: dict[str, Any]) -> list[str]:
     return lines
 
 
+def training_table(report: dict[str, Any]) -> list[str]:
+    lines = [
+        "| set | preset | seeds | wall (s) | first metrics row (s) | env steps/s per seed | steps per seed "
+        "| mean return at the end | return against wall clock (s: return) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["training"]:
+        curve = row["curve"]
+        points = ", ".join(f"{point['seconds']:.0f}: {point['mean_return']:.0f}" for point in curve)
+        lines.append(
+            f"| {display_name(row['set'])} | {row['preset']} | {row['seeds']} | {row['wall_s']:.0f} "
+            f"| {row['first_row_s']:.0f} | {row['env_steps_per_second_per_seed']:,.0f} "
+            f"| {curve[-1]['env_steps_per_seed']:,.0f} | {curve[-1]['mean_return']:.1f} | {points} |"
+        )
+    return lines
+
+
 def markdown(report: dict[str, Any]) -> str:
     """The report as Markdown: machine and software, the two tables, sweep stops, what was not measured."""
     machine, settings = report["machine"], report["settings"]
@@ -314,6 +445,11 @@ def markdown(report: dict[str, Any]) -> str:
         "",
         *update_table(report),
         "",
+        f"## Time to return (each preset trained for {settings['train_seconds']:.0f} s, start-up included; "
+        "returns of the training episodes, mean over seeds)",
+        "",
+        *training_table(report),
+        "",
         f"Peak device memory: {'not reported by this backend' if peak is None else f'{peak:.2f} GiB'}.",
     ]
     if report["not_measured"]:
@@ -338,6 +474,9 @@ def settings_from(args: argparse.Namespace) -> ReportSettings:
         "copies": args.copies,
         "update_sets": args.update_sets,
         "budget_s": args.budget,
+        "train_set": args.train_set,
+        "train_presets": tuple(args.train_presets) if args.train_presets is not None else None,
+        "train_seconds": args.train_seconds,
     }
     return dataclasses.replace(settings, **{key: value for key, value in chosen.items() if value is not None})
 
@@ -362,6 +501,17 @@ def parse_arguments() -> argparse.Namespace:
     )
     parser.add_argument(
         "--budget", type=float, help=f"seconds the report may take (default {FULL.budget_s:.0f})"
+    )
+    parser.add_argument("--train-set", help=f"set of the time-to-return runs (default {FULL.train_set})")
+    parser.add_argument(
+        "--train-presets",
+        nargs="*",
+        help=f"presets trained (default {' '.join(FULL.train_presets)}; none: no training)",
+    )
+    parser.add_argument(
+        "--train-seconds",
+        type=float,
+        help=f"wall seconds of each training run (default {FULL.train_seconds:.0f})",
     )
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()

@@ -41,6 +41,7 @@ import csv
 import dataclasses
 import datetime
 import math
+import os
 import shlex
 import sys
 from collections.abc import Mapping, Sequence
@@ -71,10 +72,55 @@ ORIGINAL = "original (PyTorch)"
 CANDIDATES: dict[str, tuple[str, ...]] = {
     "paper": (),
     "fast": ("--preset", "fast"),
-}
+    "fast-c16-k32-u64-b256": (
+        "--preset", "fast", "--copies", "16", "--iteration.chunk", "32", "--iteration.updates", "64",
+        "--td3.batch-size", "256",
+    ),
+    "fast-c4-k16-u64-b100": (
+        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
+        "--td3.batch-size", "100",
+    ),
+    "fast-c8-k16-u64-b200": (
+        "--preset", "fast", "--copies", "8", "--iteration.chunk", "16", "--iteration.updates", "64",
+        "--td3.batch-size", "200",
+    ),
+    "fast-c4-k16-u64-b100-2dev": (
+        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
+        "--td3.batch-size", "100",
+    ),
+    "fast-c4-k16-u128-b100-2dev": (
+        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "128",
+        "--td3.batch-size", "100",
+    ),
+    "fast-c4-k16-u64-b100-lr3e-3-2dev": (
+        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
+        "--td3.batch-size", "100", "--td3.learning-rate", "3e-3",
+    ),
+    "paper-2dev": (),
+}  # fmt: skip
 """swat_jax configurations by name: ``paper`` is against_original.py's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is ``--preset ...`` flags on top of the scale's sizes and
-hyperparameters, trained for the original's budget."""
+hyperparameters (and after them, so they override them), trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
+per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
+``-lrX`` with learning rate X;
+``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
+CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
+"""Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over
+them: XLA runs each device's program on its own thread, where one program leaves a core idle in the
+updates' small matrix products)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceRun(RunSpec):
+    """A run whose process sees ``devices`` CPU devices."""
+
+    devices: int = 1
+
+    def command(self) -> list[str]:
+        if self.devices == 1:
+            return super().command()
+        flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={self.devices}"
+        return ["env", f"XLA_FLAGS={flags.strip()}", *super().command()]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,9 +166,10 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
     program, a metrics row at least every curve interval."""
     if name not in CANDIDATES:
         raise GridError(f"unknown candidate {name!r}; candidates: {', '.join(CANDIDATES)}")
-    if name == "paper":
+    devices = CPU_DEVICES.get(name, 1)
+    if name.startswith("paper"):
         base = ours(out, settings, environment_set)
-        return RunSpec(out / "runs" / f"{environment_set}-paper", base.flags)
+        return DeviceRun(out / "runs" / f"{environment_set}-{name}", base.flags, devices)
     s = settings
     flags = (
         f"--env {environment_set} --algo swat --seeds {s.seeds} --steps {s.budget(environment_set)} "
@@ -131,7 +178,7 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
         f"--td3.learning-rate {s.learning_rate} --log-interval {s.log_interval(environment_set)} "
         f"--checkpoint-interval {s.log_interval(environment_set) * 4}"
     ).split()
-    return RunSpec(out / "runs" / f"{environment_set}-{name}", (*CANDIDATES[name], *flags))
+    return DeviceRun(out / "runs" / f"{environment_set}-{name}", (*flags, *CANDIDATES[name]), devices)
 
 
 def candidate_curve(
@@ -180,7 +227,7 @@ def figure(curves: Sequence[Curve], target: float, title: str, path: Path) -> No
         ax.set_xlabel(label)
         ax.set_ylabel("return (training episodes, mean over bodies)")
         ax.set_title(title)
-        ax.legend()
+        ax.legend(loc="lower right", fontsize="small")
     fig.set_size_inches(12, 4.5)
     save(fig, path)
 
@@ -315,6 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="runs, figures and the report",
     )
     parser.add_argument("--dry-run", action="store_true", help="print the commands of the runs and stop")
+    parser.add_argument(
+        "--report-only", action="store_true",
+        help="train nothing: write the report from the runs that exist (a candidate without one is left out)",
+    )  # fmt: skip
     return parser
 
 
@@ -336,9 +387,10 @@ def main(argv: list[str] | None = None) -> int:
             for run in runs:
                 steps = progress(run)
                 state = "new" if steps is None else f"resumes at {steps:,} steps"
-                print(f"python {shlex.join(run.command()[1:])}  # {state}")
+                print(f"{shlex.join(run.command())}  # {state}")
             return None
-        train_all(runs, args.out)
+        if not args.report_only:
+            train_all(runs, args.out)
         return report(args.out, args.original_from, settings, args.sets, args.candidates, args.window, argv)
 
     return exit_status(work)

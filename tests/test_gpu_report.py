@@ -101,7 +101,14 @@ def test_the_budget_starts_no_run_that_cannot_fit(gpu_report):
 @pytest.mark.slow
 def test_tiny_report_writes_json_and_markdown(hopper_folder, tmp_path):
     out = tmp_path / "report"
-    sets = ["--sets", str(hopper_folder), "--update-sets", str(hopper_folder)]
+    sets = [
+        "--sets",
+        str(hopper_folder),
+        "--update-sets",
+        str(hopper_folder),
+        "--train-set",
+        str(hopper_folder),
+    ]
     result = subprocess.run(
         [sys.executable, str(SCRIPT), "--tiny", *sets, "--out", str(out)],
         capture_output=True,
@@ -125,6 +132,10 @@ def test_tiny_report_writes_json_and_markdown(hopper_folder, tmp_path):
     (update,) = report["td3_update"]
     assert update.keys() >= UPDATE_FIELDS
     assert update["tasks"] == 1 and update["batch_per_body"] == 8 and update["transitions_per_second"] > 0
+    (training,) = report["training"]
+    assert (training["preset"], training["seeds"]) == ("fast", 2)
+    assert training["curve"] and training["env_steps_per_second_per_seed"] > 0
+    assert 0 < training["first_row_s"] <= training["curve"][-1]["seconds"] <= training["wall_s"] + 1e-6
     assert report["peak_device_memory_gib"] is None  # the CPU backend reports no device memory
     assert report["not_measured"] == [] and report["total_s"] > 0
     markdown = (out / "report.md").read_text()
@@ -132,4 +143,5 @@ def test_tiny_report_writes_json_and_markdown(hopper_folder, tmp_path):
     assert "| set | bodies x max limbs | copies | MJX steps/s |" in markdown
     assert f"| {hopper_folder} | 1x3 | 1 | " in markdown
     assert f"| {hopper_folder} | swat | 2,839 / 5,712 | 1x8 |" in markdown
+    assert f"| {hopper_folder} | fast | 2 | " in markdown
     assert markdown in result.stdout

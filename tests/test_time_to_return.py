@@ -76,3 +76,15 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
     capsys.readouterr()
     assert ttr.main(argv) == 0
     assert "done (600 steps), kept" in capsys.readouterr().err
+    assert ttr.main([*argv, "--candidates", "fast", "paper", "--report-only"]) == 0
+    assert "| paper |" not in (out / "time_to_return.md").read_text(), "no paper run: left out"
+    assert not (out / "runs" / "hopper-paper").exists()
+
+
+def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):
+    run = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100-2dev")
+    command = run.command()
+    assert command[0] == "env" and command[1].endswith("--xla_force_host_platform_device_count=2")
+    assert command[2:5] == [sys.executable, "-m", "swat_jax.train"]
+    plain = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100")
+    assert plain.flags == run.flags and "device_count" not in " ".join(plain.command())

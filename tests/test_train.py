@@ -344,7 +344,7 @@ def test_presets_follow_the_budget_convention():
     paper, fast = PRESETS["paper"], PRESETS["fast"]
     assert paper.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per env step"
     assert paper.td3.batch_size == 100 and paper.iteration.capacity == 500_000
-    assert fast.copies > 1 and fast.td3.batch_size > paper.td3.batch_size
+    assert fast.copies > 1 and fast.iteration.schedule == "all_tasks", "parallel copies, all-body updates"
     assert paper.steps_per_iteration(num_bodies=5) == 5 * 100, "steps count every body"
 
 
@@ -371,7 +371,7 @@ def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):
         assert "--" + name.replace("_", "-") in text, name
     with pytest.raises(SystemExit):
         main(["--preset", "fast", "--help"])
-    assert "(default: 16)" in capsys.readouterr().out, "--help shows the fast preset's copies"
+    assert "(default: 4)" in capsys.readouterr().out, "--help shows the fast preset's copies"
 
 
 def test_cli_reports_an_existing_run_directory(trained_run, capsys):

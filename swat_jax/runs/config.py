@@ -94,7 +94,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = "paper"
-    """Preset that gave this run its defaults: paper (1 copy per body, the original schedule's 1 update per step) or fast (16 copies, batch 256, all_tasks updates)."""
+    """Preset that gave this run its defaults: paper (1 copy per body, the original schedule's 1 update per step) or fast (4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
     seed: int = 0
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -300,9 +300,9 @@ PRESETS: dict[str, TrainConfig] = {
     ),
     "fast": TrainConfig(
         preset="fast",
-        copies=16,
-        iteration=IterationConfig(chunk=32, updates=64, schedule="all_tasks"),
-        td3=TD3Config(batch_size=256),
+        copies=4,
+        iteration=IterationConfig(chunk=16, updates=128, schedule="all_tasks"),
+        td3=TD3Config(batch_size=100),
         **FIXES,
     ),
 }
