@@ -9,7 +9,7 @@ ARGS ?=
 PY ?= 3.12
 CPU_DEVICES ?= $(shell nproc)
 # JAX sees the CPU's cores as CPU_DEVICES devices, so a run's seeds (or tasks) split over them and each
-# core runs its share of the update: 1.75x the fast preset's speed on 2 cores (BENCHMARKS.md). No effect
+# core runs its share of the update: 1.11x the fast preset's iteration on 2 cores (BENCHMARKS.md). No effect
 # on a GPU, whose devices are JAX's default.
 TRAIN_XLA_FLAGS = $(strip $(XLA_FLAGS) --xla_force_host_platform_device_count=$(CPU_DEVICES))
 

@@ -106,8 +106,8 @@ per body, chunk K, U updates per iteration and batch B per body (the recipe sear
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over
-them: XLA runs each device's program on its own thread, where one program leaves a core idle in the
-updates' small matrix products)."""
+them: XLA runs each device's share on its own thread; 1.11x on the fast preset's iteration with 2,
+BENCHMARKS.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
