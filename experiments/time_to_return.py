@@ -40,7 +40,6 @@ import argparse
 import csv
 import dataclasses
 import datetime
-import math
 import os
 import shlex
 import sys
@@ -66,38 +65,30 @@ from paper import GridError, RunSpec, exit_status, progress, read_timings, train
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
 from swat_jax.plot import new_figure, save
-from swat_jax.runs.metrics import read_metrics
+from swat_jax.runs.metrics import read_metrics, standard_error
 
 ORIGINAL = "original (PyTorch)"
+
+
+def recipe(copies: int, chunk: int, updates: int, batch: int, *more: str) -> tuple[str, ...]:
+    """The fast preset's flags with ``copies`` per body, ``chunk`` steps per copy, ``updates`` per
+    iteration, ``batch`` per body, and ``more`` flags."""
+    sizes = ("--copies", copies, "--iteration.chunk", chunk, "--iteration.updates", updates)
+    return ("--preset", "fast", *map(str, (*sizes, "--td3.batch-size", batch)), *more)
+
+
 CANDIDATES: dict[str, tuple[str, ...]] = {
     "paper": (),
-    "fast": ("--preset", "fast"),
-    "fast-c16-k32-u64-b256": (
-        "--preset", "fast", "--copies", "16", "--iteration.chunk", "32", "--iteration.updates", "64",
-        "--td3.batch-size", "256",
-    ),
-    "fast-c4-k16-u64-b100": (
-        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
-        "--td3.batch-size", "100",
-    ),
-    "fast-c8-k16-u64-b200": (
-        "--preset", "fast", "--copies", "8", "--iteration.chunk", "16", "--iteration.updates", "64",
-        "--td3.batch-size", "200",
-    ),
-    "fast-c4-k16-u64-b100-2dev": (
-        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
-        "--td3.batch-size", "100",
-    ),
-    "fast-c4-k16-u128-b100-2dev": (
-        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "128",
-        "--td3.batch-size", "100",
-    ),
-    "fast-c4-k16-u64-b100-lr3e-3-2dev": (
-        "--preset", "fast", "--copies", "4", "--iteration.chunk", "16", "--iteration.updates", "64",
-        "--td3.batch-size", "100", "--td3.learning-rate", "3e-3",
-    ),
     "paper-2dev": (),
-}  # fmt: skip
+    "fast": ("--preset", "fast"),
+    "fast-2dev": ("--preset", "fast"),
+    "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
+    "fast-c8-k16-u64-b200": recipe(8, 16, 64, 200),
+    "fast-c4-k16-u64-b100": recipe(4, 16, 64, 100),
+    "fast-c4-k16-u64-b100-2dev": recipe(4, 16, 64, 100),
+    "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
+    "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "3e-3"),
+}
 """swat_jax configurations by name: ``paper`` is against_original.py's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is ``--preset ...`` flags on top of the scale's sizes and
 hyperparameters (and after them, so they override them), trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
@@ -140,8 +131,7 @@ class Curve:
         for step in sorted({step for curve in self.returns for step in curve}):
             values = np.array([curve[step] for curve in self.returns if step in curve])
             seconds = [s[step] for s in self.seconds if step in s]
-            error = float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) > 1 else math.nan
-            rows.append((step, float(np.mean(seconds)), float(np.mean(values)), error))
+            rows.append((step, float(np.mean(seconds)), float(np.mean(values)), standard_error(values)))
         return rows
 
 
