@@ -275,8 +275,10 @@ def c_steps_per_second(bodies: Sequence[str], steps: int, seed: int = 0) -> floa
 
 def c_steps_per_second_on_cores(bodies: Sequence[str], steps: int, processes: int) -> float:
     """Env steps per second of every body on MuJoCo C in ``processes`` concurrent processes (one per core,
-    each running every body with its own random controls), summed over the processes."""
-    with multiprocessing.get_context("fork").Pool(processes) as pool:
+    each running every body with its own random controls), summed over the processes. The processes are
+    spawned, not forked: a fork of this process, whose JAX and MuJoCo C physics threads may hold locks,
+    can deadlock in the child."""
+    with multiprocessing.get_context("spawn").Pool(processes) as pool:
         rates = pool.starmap(c_steps_per_second, [(tuple(bodies), steps, seed) for seed in range(processes)])
     return sum(rates)
 

@@ -22,7 +22,9 @@ import math
 import os
 import shutil
 import signal
+import socket
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -95,16 +97,51 @@ class RunExistsError(ConfigError):
 
 
 class StopRequest:
-    """Set by SIGINT / SIGTERM: the loop checkpoints after the running iteration and returns.
+    """SIGINT / SIGTERM while training, as a context manager: the loop checkpoints after the running
+    iteration and returns once :attr:`requested` is set.
 
     A second signal aborts at once, without a checkpoint: the process exits with 128 + the signal's
-    number (130 for Ctrl-C) without waiting for the computation in flight.
+    number (130 for Ctrl-C) without waiting for the computation in flight. Python runs its signal handlers
+    only in the main thread between bytecodes, and a signal that arrives while a handler is pending is
+    lost; the main thread waits inside XLA for a whole iteration (seconds with the paper's sizes), so two
+    Ctrl-C in one iteration would be one. Instead every signal that arrives is one byte on Python's
+    wakeup file descriptor (``signal.set_wakeup_fd``), read by a thread that acts on each at once.
     """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self) -> None:
         self.requested = False
+        self._reader, self._writer = socket.socketpair()
+        self._writer.setblocking(False)
+        self._watcher = threading.Thread(target=self._watch, name="swat_jax_stop_request", daemon=True)
+        self._previous: dict[int, Any] = {}
+        self._previous_fd = -1
 
-    def __call__(self, signum: int, frame: Any) -> None:
+    def __enter__(self) -> StopRequest:
+        # A Python-level handler makes the C-level one run, which writes the byte; the thread acts on it.
+        self._previous = {sig: signal.signal(sig, _pending_for_watcher) for sig in self.SIGNALS}
+        self._previous_fd = signal.set_wakeup_fd(self._writer.fileno(), warn_on_full_buffer=False)
+        self._watcher.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        signal.set_wakeup_fd(self._previous_fd)
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._writer.close()
+        self._watcher.join()
+        self._reader.close()
+
+    def _watch(self) -> None:
+        """Act on each signal's byte until the writing end closes."""
+        while received := self._reader.recv(64):
+            for signum in received:
+                if signum in self.SIGNALS:
+                    self.receive(signum)
+
+    def receive(self, signum: int) -> None:
+        """The first signal asks for a stop after the running iteration; the next one aborts."""
         name = signal.Signals(signum).name
         if self.requested:
             print(f"\n{name} again: aborted without a checkpoint", file=sys.stderr, flush=True)
@@ -117,6 +154,10 @@ class StopRequest:
             file=sys.stderr,
             flush=True,
         )
+
+
+def _pending_for_watcher(signum: int, frame: Any) -> None:
+    """The Python-level handler while :class:`StopRequest` watches: nothing (its thread has acted)."""
 
 
 @dataclasses.dataclass
@@ -261,48 +302,45 @@ def _loop(
         checkpoints.save(state, network_items(state.learner), info)
         saved = done
 
-    stop = StopRequest()
-    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    bar = tqdm(
-        total=total * per_iteration,
-        initial=done * per_iteration,
-        unit="step",
-        disable=not progress,
-        smoothing=0.1,
-    )
-    timed, window_start = 0, time.perf_counter()
-    try:
-        while done < total and not stop.requested:
-            state, step_metrics = iteration(state)
-            # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
-            window.add(fetch(step_metrics))
-            done, timed = done + 1, timed + 1
-            bar.update(per_iteration)
-            if done % log_every == 0 or done == total:
-                now = time.perf_counter()
-                seconds += now - window_start
-                rate = timed * per_iteration / (now - window_start)
-                rows = _log_rows(window, config, env.body_names, done, rate)
-                if evaluation is not None:
-                    due = done == total or _crossed(
-                        config.eval_interval, done, window.iterations, per_iteration
-                    )
-                    rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
-                for row in rows if metrics is not None else ():
-                    metrics.write(row)
-                bar.set_postfix(_progress_summary(rows))
-                window.clear()
-                timed, window_start = 0, now
-            if done % checkpoint_every == 0:
+    with StopRequest() as stop:
+        bar = tqdm(
+            total=total * per_iteration,
+            initial=done * per_iteration,
+            unit="step",
+            disable=not progress,
+            smoothing=0.1,
+        )
+        timed, window_start = 0, time.perf_counter()
+        try:
+            while done < total and not stop.requested:
+                state, step_metrics = iteration(state)
+                # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
+                window.add(fetch(step_metrics))
+                done, timed = done + 1, timed + 1
+                bar.update(per_iteration)
+                if done % log_every == 0 or done == total:
+                    now = time.perf_counter()
+                    seconds += now - window_start
+                    rate = timed * per_iteration / (now - window_start)
+                    rows = _log_rows(window, config, env.body_names, done, rate)
+                    if evaluation is not None:
+                        due = done == total or _crossed(
+                            config.eval_interval, done, window.iterations, per_iteration
+                        )
+                        rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
+                    for row in rows if metrics is not None else ():
+                        metrics.write(row)
+                    bar.set_postfix(_progress_summary(rows))
+                    window.clear()
+                    timed, window_start = 0, now
+                if done % checkpoint_every == 0:
+                    save()
+                if after_iteration is not None:
+                    after_iteration(done)
+            if saved != done:
                 save()
-            if after_iteration is not None:
-                after_iteration(done)
-        if saved != done:
-            save()
-    finally:
-        bar.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        finally:
+            bar.close()
     return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=done < total)
 
 

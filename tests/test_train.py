@@ -232,6 +232,7 @@ def test_a_stop_request_is_honoured_within_one_iteration(trained_run, hopper_fol
 
 def run_training_command(flags: list[str], signals_after: dict[str, list[float]], timeout: float = 120):
     """``python -m swat_jax.train FLAGS``; on the first stdout line containing a key, SIGINT after each delay.
+    A process still running ``timeout`` seconds after its start is killed (status -9), so a hang fails.
 
     Returns (exit status, stdout, stderr, seconds from the last SIGINT to the exit).
     """
@@ -242,6 +243,8 @@ def run_training_command(flags: list[str], signals_after: dict[str, list[float]]
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
+    watchdog = threading.Timer(timeout, process.kill)
+    watchdog.start()
     lines, last_signal = [], None
     for line in process.stdout:
         lines.append(line)
@@ -255,17 +258,21 @@ def run_training_command(flags: list[str], signals_after: dict[str, list[float]]
         else:
             continue
         break
-    status = process.wait(timeout)
+    status = process.wait()
     exit_time = time.perf_counter()
+    watchdog.cancel()
     lines.append(process.stdout.read())
     return status, "".join(lines), process.stderr.read(), exit_time - (last_signal or exit_time)
 
 
 def test_a_second_ctrl_c_aborts_at_once(trained_run, hopper_folder, tmp_path):
-    """(``trained_run`` first puts the tiny run's program in the compilation cache.)"""
+    """The second SIGINT comes while the first one's iteration or checkpoint is still in flight (the tiny
+    run's iterations take a tenth of a second). Both count even when the main thread waits inside XLA for
+    the whole time, where Python would run one handler for the two. (``trained_run`` first puts the tiny
+    run's program in the compilation cache.)"""
     config = tiny_train_config(tmp_path / "aborted", hopper_folder, steps=100_000, log_interval=100_000)
     status, _, stderr, seconds = run_training_command(
-        [*train_flags(config), "--no-progress"], {"compiled in": [0.5, 0.3]}
+        [*train_flags(config), "--no-progress"], {"compiled in": [0.5, 0.02]}
     )
     assert status == 130, stderr
     assert "aborted without a checkpoint" in stderr and "Traceback" not in stderr

@@ -20,6 +20,7 @@ leaves the previous checkpoint intact.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import sys
 import traceback
 from collections.abc import Callable
@@ -43,6 +44,11 @@ ORBAX_DIR = Path(ocp.__file__).parent
 """Orbax's source folder: the coroutines of a failed restore that are closed unfinished are defined there."""
 CLOSED_LOOP = "Event loop is closed"
 """What TensorStore's callback of a read that ends after its restore failed raises on the closed loop."""
+UNRETRIEVED = "Task exception was never retrieved"
+"""How asyncio's logger reports a task that failed and was collected unread (a failed restore's reads)."""
+
+
+ASYNCIO_LOG = logging.getLogger("asyncio")
 
 
 class CheckpointError(RuntimeError):
@@ -228,6 +234,8 @@ class Checkpoints:
         previous = sys.unraisablehook
         if not isinstance(previous, AbandonedReadsFilter):
             sys.unraisablehook = AbandonedReadsFilter(previous)
+        abandoned = AbandonedReadsFilter(previous)
+        ASYNCIO_LOG.addFilter(abandoned)
         try:
             restored = self.manager.restore(step, args=ocp.args.Composite(**items))
         except Exception as error:
@@ -236,6 +244,7 @@ class Checkpoints:
                 f"the previous checkpoint. {self._log_error(step, error)}"
             ) from error
         sys.unraisablehook = previous
+        ASYNCIO_LOG.removeFilter(abandoned)
         return restored
 
     def _log_error(self, step: int, error: Exception) -> str:
@@ -250,10 +259,11 @@ class Checkpoints:
 
 
 class AbandonedReadsFilter:
-    """A ``sys.unraisablehook`` that drops what the reads of a failed restore report after it, and passes
-    everything else on to ``hook``: TensorStore's callbacks of reads that end on the closed event loop
-    (RuntimeError "Event loop is closed", no object), and the exceptions Orbax's unfinished read coroutines
-    raise when they are closed (the coroutine as object)."""
+    """A ``sys.unraisablehook`` and a filter of asyncio's logger that drop what the reads of a failed
+    restore report after it, and pass everything else on (to ``hook``, or to the log): TensorStore's
+    callbacks of reads that end on the closed event loop (RuntimeError "Event loop is closed", no object),
+    the exceptions Orbax's unfinished read coroutines raise when they are closed (the coroutine as object),
+    and asyncio's "Task exception was never retrieved" of the failed read tasks, Orbax's coroutines."""
 
     def __init__(self, hook: Callable[[Any], object]):
         self.hook = hook
@@ -261,6 +271,11 @@ class AbandonedReadsFilter:
     def __call__(self, unraisable: sys.UnraisableHookArgs) -> None:
         if not _abandoned_read(unraisable):
             self.hook(unraisable)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """False for asyncio's report of a failed read task of Orbax's."""
+        message = record.getMessage()
+        return not (message.startswith(UNRETRIEVED) and str(ORBAX_DIR) in message)
 
 
 def _abandoned_read(unraisable: sys.UnraisableHookArgs) -> bool:
