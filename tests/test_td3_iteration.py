@@ -10,6 +10,7 @@ from swat_jax.envs import MultiTaskEnv
 from swat_jax.networks import make_actor_critic, network_config, task_set
 from swat_jax.td3.iteration import (
     IterationConfig,
+    exploration_scales,
     init_seeded_train_state,
     init_train_state,
     make_seeded_train_iteration,
@@ -111,3 +112,31 @@ def test_a_one_seed_run_is_the_plain_iteration_with_a_seed_axis(single_seed_run)
         np.testing.assert_allclose(one, b, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(state.env.observation[0], alone.env.observation, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(metrics["critic_loss"][0], alone_metrics["critic_loss"], rtol=1e-5)
+
+
+def test_each_copy_explores_with_its_own_noise_scale():
+    """With exploration_noise_max, copy j's actions are the policy's plus noise of std spread evenly from
+    exploration_noise (copy 0, here 0: the policy itself) to the maximum (FastTD3's per-environment noise)."""
+    copies, chunk = 4, 40
+    config = IterationConfig(
+        chunk=chunk, updates=1, random_steps=0, capacity=256, schedule="all_tasks",
+        exploration_noise=0.0, exploration_noise_max=0.3,
+    )  # fmt: skip
+    np.testing.assert_allclose(exploration_scales(config, copies), [0.0, 0.1, 0.2, 0.3], atol=1e-7)
+    np.testing.assert_allclose(exploration_scales(CONFIG, 3), [CONFIG.exploration_noise] * 3)
+    env = MultiTaskEnv(["hopper_3"], copies=copies, max_limbs=4)
+    actor, critic = make_actor_critic(NETWORK, 19)
+    learner = Learner(actor, critic, TD3Config(batch_size=1024))  # no update: the actor stays the initial one
+    state = jax.jit(lambda key: init_train_state(env, learner, config, key))(jax.random.PRNGKey(2))
+    state, _ = jax.jit(make_train_iteration(env, STRUCTURE, learner, config))(state)
+    stored = jax.tree_util.tree_map(lambda x: np.asarray(x[0, : chunk * copies]), state.buffer.data)
+    policy = np.asarray(
+        actor.apply(
+            state.learner.actor_params, stored.observation, jax.tree_util.tree_map(lambda x: x[0], STRUCTURE)
+        )
+    )
+    residual = (stored.action - policy)[:, :3].reshape(chunk, copies, 3)  # rows: step-major, then copy
+    np.testing.assert_allclose(residual[:, 0], 0.0, atol=1e-6)
+    spread = np.sqrt(np.mean(residual**2, axis=(0, 2)))  # clipping to [-1, 1] only shrinks it
+    np.testing.assert_allclose(spread[1:], [0.1, 0.2, 0.3], rtol=0.3)
+    assert spread[1] < spread[2] < spread[3]

@@ -333,6 +333,8 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
         TrainConfig(env="hoper")
     with pytest.raises(ConfigError, match=r"--iteration\.chunk must be a positive"):
         TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, chunk=0))
+    with pytest.raises(ConfigError, match=r"exploration-noise-max are standard deviations.*got 0.126 and -0.1"):
+        TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, exploration_noise_max=-0.1))
 
 
 def test_every_named_network_is_an_algo_choice():

@@ -193,6 +193,12 @@ class TrainConfig:
             require_positive("--smp-hidden", self.smp_hidden)
         if self.eval_interval < 0:
             raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
+        noise = (self.iteration.exploration_noise, self.iteration.exploration_noise_max)
+        if min(value for value in noise if value is not None) < 0:
+            raise ConfigError(
+                f"--iteration.exploration-noise and --iteration.exploration-noise-max are standard deviations, "
+                f"0 or more; got {noise[0]} and {noise[1]}"
+            )
         if self.iteration.random_steps < 0:
             raise ConfigError(
                 f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"

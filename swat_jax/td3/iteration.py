@@ -9,7 +9,7 @@ replay buffer holds one ring per task. The update schedule (:attr:`IterationConf
 reference code's by default: the tasks one after another, each taking its run of updates on its own
 batches (its ``TD3.train``); ``all_tasks`` instead vmaps every update's losses over all tasks. Exploration
 follows the paper: uniform random actions for each task's first ``random_steps`` steps, then the policy
-plus Gaussian noise (std ``exploration_noise``), clipped to [-1, 1]. Updates start once every task's
+plus Gaussian noise (std ``exploration_noise``, or one per copy: :func:`exploration_scales`), clipped to [-1, 1]. Updates start once every task's
 buffer holds a full batch.
 
 Seeds are one more batch axis: :func:`make_seeded_train_iteration` runs the iteration over a leading
@@ -94,9 +94,18 @@ class IterationConfig:
     random_steps: int = 10_000
     """Per task: steps with uniform random actions before the policy acts."""
     exploration_noise: float = 0.126
-    """Std of the Gaussian noise added to the policy's actions."""
+    """Std of the Gaussian noise added to the policy's actions (of the first copy, with exploration_noise_max)."""
+    exploration_noise_max: float | None = None
+    """With it, each copy of a body explores with its own noise std, spread evenly from exploration_noise (the first copy) to this (the last), so one run explores both near its policy and far from it (FastTD3's noise drawn per environment, Seo et al. 2025); None: every copy exploration_noise."""
     capacity: int = 500_000
     """Replay rows per task (the paper: 500K)."""
+
+
+def exploration_scales(config: IterationConfig, copies: int) -> jax.Array:
+    """[copies] std of each copy's Gaussian exploration noise (:attr:`IterationConfig.exploration_noise_max`)."""
+    if config.exploration_noise_max is None:
+        return jnp.full(copies, config.exploration_noise, jnp.float32)
+    return jnp.linspace(config.exploration_noise, config.exploration_noise_max, copies, dtype=jnp.float32)
 
 
 def init_train_state(
@@ -379,6 +388,7 @@ def _make_iteration(
     """The iteration of :func:`make_train_iteration` (``seeded`` False) or :func:`make_seeded_train_iteration`."""
     structure = jax.tree_util.tree_map(jnp.asarray, structure)
     mask = structure.limb_mask[:, None, :]
+    noise_scales = exploration_scales(config, env.copies)[None, :, None]
 
     num_tasks = structure.limb_mask.shape[0]
 
@@ -395,7 +405,7 @@ def _make_iteration(
         """[K, n, L] exploration actions for the observations [K, n, L, F] of one seed."""
         policy_key, random_key = jax.random.split(rng)
         policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(actor_params, observation, structure)
-        noise = config.exploration_noise * jax.random.normal(policy_key, policy.shape)
+        noise = noise_scales * jax.random.normal(policy_key, policy.shape)
         uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
         action = jnp.where(uniform_phase, uniform, jnp.clip(policy + noise, -1.0, 1.0))
         return jnp.where(mask, action, 0.0)
