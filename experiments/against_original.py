@@ -471,13 +471,14 @@ class Final:
 def final_returns(
     curves: Sequence[SeedCurves], settings: Settings, environment_set: str, body: str | None = None
 ) -> Final:
-    """Each seed's mean over the points of the budget's last ``final_fraction``: of the mean over bodies, or of
-    ``body``'s curve."""
-    start = settings.budget(environment_set) * (1 - settings.final_fraction)
+    """Each seed's mean over the points of the budget's last ``final_fraction`` (points past the budget left
+    out): of the mean over bodies, or of ``body``'s curve."""
+    budget = settings.budget(environment_set)
+    start = budget * (1 - settings.final_fraction)
     values = []
     for curve in curves:
         line = curve.mean_over_bodies() if body is None else curve.returns[body]
-        tail = [value for step, value in line.items() if step > start]
+        tail = [value for step, value in line.items() if start < step <= budget]
         values.append(float(np.mean(tail)) if tail else math.nan)
     return Final(np.array(values))
 

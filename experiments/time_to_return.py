@@ -2,7 +2,8 @@
 SWAT trainer's final return, beside the original's own.
 
     python experiments/time_to_return.py [--sets hopper walker] [--scale small] [--candidates paper fast]
-        [--seeds 4] [--window 3] [--original-from experiments/results/against_original] [--out DIR] [--dry-run]
+        [--seeds 4] [--window 3] [--horizon 1.5] [--original-from experiments/results/against_original]
+        [--out DIR] [--dry-run]
 
 On one environment set, at a scale of experiments/against_original.py (the same network sizes, learning
 rate, random-start steps, replay size and step budget as the original trainer's runs), the script trains
@@ -18,6 +19,10 @@ Two x axes:
   included. The original runs one seed per process on one core (torch with one thread), so its machine
   seconds per seed are its own wall clock; swat_jax runs every seed in one program on all
   ``host_cores()`` cores.
+
+``--horizon H`` trains swat_jax's candidates for H times the original's budget (rounded up to a curve
+point): the time to R counts wherever the curve reaches it, the final return is still the budget's. A run
+that stopped at a shorter horizon continues from its last checkpoint.
 
 R is the original's final return (the mean over seeds of each seed's mean over the points of the
 budget's last 20%, as against_original.py). A curve reaches R at its first point where the mean over
@@ -40,6 +45,7 @@ import argparse
 import csv
 import dataclasses
 import datetime
+import math
 import os
 import shlex
 import sys
@@ -77,6 +83,15 @@ def recipe(copies: int, chunk: int, updates: int, batch: int, *more: str) -> tup
     return ("--preset", "fast", *map(str, (*sizes, "--td3.batch-size", batch)), *more)
 
 
+def noise(low: float, high: float) -> tuple[str, ...]:
+    """Flags of per-copy exploration noise: std spread evenly from ``low`` (the first copy) to ``high``."""
+    return ("--iteration.exploration-noise", str(low), "--iteration.exploration-noise-max", str(high))
+
+
+C51 = ("--td3.atoms", "51", "--td3.value-min", "-100", "--td3.value-max", "400")
+"""Flags of a distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
+
+
 CANDIDATES: dict[str, tuple[str, ...]] = {
     "paper": (),
     "paper-2dev": (),
@@ -88,12 +103,16 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "fast-c4-k16-u64-b100-2dev": recipe(4, 16, 64, 100),
     "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
     "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "3e-3"),
+    "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, *noise(0.05, 0.4)),
+    "fast-n0.05-0.4-2dev": ("--preset", "fast", *noise(0.05, 0.4)),
+    "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, *C51),
+    "fast-c51-2dev": ("--preset", "fast", *C51),
 }
 """swat_jax configurations by name: ``paper`` is against_original.py's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is ``--preset ...`` flags on top of the scale's sizes and
 hyperparameters (and after them, so they override them), trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X;
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic;
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over
@@ -151,9 +170,16 @@ def machine_seconds(curves: Sequence[SeedCurves], cores: float, seeds_at_once: i
     return tuple({step: t * cores / seeds_at_once for step, t in c.seconds.items()} for c in curves)
 
 
+def with_horizon(settings: Settings, environment_set: str, horizon: float) -> Settings:
+    """``settings`` with ``environment_set``'s budget ``horizon`` times as long, rounded up to a curve point."""
+    interval = settings.log_interval(environment_set)
+    steps = math.ceil(settings.budget(environment_set) * horizon / interval) * interval
+    return dataclasses.replace(settings, steps={**settings.steps, environment_set: steps})
+
+
 def candidate_run(out: Path, settings: Settings, environment_set: str, name: str) -> RunSpec:
     """The swat_jax run of candidate ``name``: the scale's sizes and hyperparameters, every seed in one
-    program, a metrics row at least every curve interval."""
+    program, a metrics row at least every curve interval, for ``settings``' budget (the horizon's)."""
     if name not in CANDIDATES:
         raise GridError(f"unknown candidate {name!r}; candidates: {', '.join(CANDIDATES)}")
     devices = CPU_DEVICES.get(name, 1)
@@ -172,12 +198,19 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
 
 
 def candidate_curve(
-    out: Path, settings: Settings, environment_set: str, name: str, timings: Mapping[str, float]
+    out: Path,
+    settings: Settings,
+    environment_set: str,
+    name: str,
+    timings: Mapping[str, float],
+    horizon: float,
 ) -> Curve | None:
-    run = candidate_run(out, settings, environment_set, name)
+    """Candidate ``name``'s curve up to the horizon, with its final returns at ``settings``' budget."""
+    longer = with_horizon(settings, environment_set, horizon)
+    run = candidate_run(out, longer, environment_set, name)
     if not (run.run_dir / "metrics.csv").is_file():
         return None
-    curves = ours_curves(read_metrics(run.run_dir), settings, environment_set, timings.get(run.name))
+    curves = ours_curves(read_metrics(run.run_dir), longer, environment_set, timings.get(run.name))
     return Curve(
         name,
         tuple(c.mean_over_bodies() for c in curves),
@@ -199,8 +232,9 @@ def original_curve(original_out: Path, settings: Settings, environment_set: str)
     )
 
 
-def figure(curves: Sequence[Curve], target: float, title: str, path: Path) -> None:
-    """Mean return over bodies against counted steps and against machine seconds per seed."""
+def figure(curves: Sequence[Curve], target: float, budget: int, title: str, path: Path) -> None:
+    """Mean return over bodies against counted steps (the original's budget dotted) and against machine
+    seconds per seed."""
     fig = new_figure()
     axes = fig.subplots(1, 2)
     for index, curve in enumerate(curves):
@@ -214,6 +248,8 @@ def figure(curves: Sequence[Curve], target: float, title: str, path: Path) -> No
         axes, ("counted environment steps (all bodies)", "machine seconds per seed"), strict=True
     ):
         ax.axhline(target, color="k", linestyle="--", linewidth=1, label=f"R = {target:.1f}")
+        if label.startswith("counted"):
+            ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="the original's budget")
         ax.set_xlabel(label)
         ax.set_ylabel("return (training episodes, mean over bodies)")
         ax.set_title(title)
@@ -234,7 +270,13 @@ def write_csv(curves: Sequence[Curve], path: Path) -> None:
 
 
 def set_section(
-    out: Path, original_out: Path, settings: Settings, environment_set: str, names: Sequence[str], window: int
+    out: Path,
+    original_out: Path,
+    settings: Settings,
+    environment_set: str,
+    names: Sequence[str],
+    window: int,
+    horizon: float,
 ) -> list[str]:
     """Figure, CSV and the Markdown section of one set."""
     timings = read_timings(out)
@@ -245,12 +287,13 @@ def set_section(
             "run experiments/against_original.py --only original, or give --original-from"
         )
     candidates = [
-        c for name in names if (c := candidate_curve(out, settings, environment_set, name, timings))
+        c for name in names if (c := candidate_curve(out, settings, environment_set, name, timings, horizon))
     ]
     target = original.finals.mean
     label = get_set(environment_set).description or environment_set
     curves = [original, *candidates]
-    figure(curves, target, f"{label}, {settings.seeds} seeds", out / f"{environment_set}.png")
+    budget = settings.budget(environment_set)
+    figure(curves, target, budget, f"{label}, {settings.seeds} seeds", out / f"{environment_set}.png")
     write_csv(curves, out / f"{environment_set}.csv")
     reference = smoothed_crossing(original.points(), target, window) or original.points()[-1][:2]
     lines = [
@@ -287,6 +330,7 @@ def report(
     sets: Sequence[str],
     names: Sequence[str],
     window: int,
+    horizon: float,
     argv,
 ) -> Path:
     versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
@@ -304,11 +348,16 @@ def report(
         f"- Machine seconds per seed: wall clock x cores used / seeds at once, start-up and compilation "
         f"included. A curve reaches R at its first point where the mean over seeds, smoothed by a trailing "
         f"mean over {window} points, is at least R (the original: that point, or its budget's end if its "
-        "smoothed curve stays below its own final return).",
+        "smoothed curve stays below its own final return)."
+        + (
+            f" swat_jax trains for {horizon:g} times the original's budget; the final return is the budget's."
+            if horizon != 1
+            else ""
+        ),
         "",
     ]
     for environment_set in sets:
-        lines += [*set_section(out, original_out, settings, environment_set, names, window), ""]
+        lines += [*set_section(out, original_out, settings, environment_set, names, window, horizon), ""]
     path = out / "time_to_return.md"
     path.write_text("\n".join(lines))
     return path
@@ -351,6 +400,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("experiments/results/time_to_return"),
         help="runs, figures and the report",
     )
+    parser.add_argument(
+        "--horizon", type=float, default=1.0,
+        help="train swat_jax's candidates for this many times the original's budget; the time to R counts "
+        "past the budget, the final return stays the budget's (default 1)",
+    )  # fmt: skip
     parser.add_argument("--dry-run", action="store_true", help="print the commands of the runs and stop")
     parser.add_argument(
         "--report-only", action="store_true",
@@ -372,7 +426,15 @@ def main(argv: list[str] | None = None) -> int:
             settings = dataclasses.replace(settings, seeds=args.seeds)
         if args.window < 1:
             raise GridError(f"--window must be 1 or more, got {args.window}")
-        runs = [candidate_run(args.out, settings, s, name) for s in args.sets for name in args.candidates]
+        if not args.horizon >= 1:
+            raise GridError(
+                f"--horizon must be 1 or more (a multiple of the original's budget), got {args.horizon}"
+            )
+        runs = [
+            candidate_run(args.out, with_horizon(settings, s, args.horizon), s, name)
+            for s in args.sets
+            for name in args.candidates
+        ]
         if args.dry_run:
             for run in runs:
                 steps = progress(run)
@@ -381,7 +443,16 @@ def main(argv: list[str] | None = None) -> int:
             return None
         if not args.report_only:
             train_all(runs, args.out)
-        return report(args.out, args.original_from, settings, args.sets, args.candidates, args.window, argv)
+        return report(
+            args.out,
+            args.original_from,
+            settings,
+            args.sets,
+            args.candidates,
+            args.window,
+            args.horizon,
+            argv,
+        )
 
     return exit_status(work)
 

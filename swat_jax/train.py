@@ -97,15 +97,16 @@ class RunExistsError(ConfigError):
 
 
 class StopRequest:
-    """SIGINT / SIGTERM while training, as a context manager: the loop checkpoints after the running
-    iteration and returns once :attr:`requested` is set.
+    """SIGINT / SIGTERM while training, as a context manager that installs the handlers and restores the
+    previous ones: the loop checkpoints after the running iteration and returns once :attr:`requested` is
+    set. A second signal aborts at once, without a checkpoint: the process exits with 128 + the signal's
+    number (130 for Ctrl-C) without waiting for the computation in flight.
 
-    A second signal aborts at once, without a checkpoint: the process exits with 128 + the signal's
-    number (130 for Ctrl-C) without waiting for the computation in flight. Python runs its signal handlers
-    only in the main thread between bytecodes, and a signal that arrives while a handler is pending is
-    lost; the main thread waits inside XLA for a whole iteration (seconds with the paper's sizes), so two
-    Ctrl-C in one iteration would be one. Instead every signal that arrives is one byte on Python's
-    wakeup file descriptor (``signal.set_wakeup_fd``), read by a thread that acts on each at once.
+    Python runs a handler in the main thread between bytecodes, once for every signal that arrived while
+    it was pending: two Ctrl-C while the main thread waits inside XLA or Orbax would be one. So the
+    handler only sets :attr:`requested` (at once where the main thread itself raised the signal), and the
+    signals are counted by a thread that reads the byte each one writes to Python's wakeup file
+    descriptor (``signal.set_wakeup_fd``).
     """
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -114,15 +115,14 @@ class StopRequest:
         self.requested = False
         self._reader, self._writer = socket.socketpair()
         self._writer.setblocking(False)
-        self._watcher = threading.Thread(target=self._watch, name="swat_jax_stop_request", daemon=True)
+        self._counter = threading.Thread(target=self._count, name="swat_jax_stop_request", daemon=True)
         self._previous: dict[int, Any] = {}
         self._previous_fd = -1
 
     def __enter__(self) -> StopRequest:
-        # A Python-level handler makes the C-level one run, which writes the byte; the thread acts on it.
-        self._previous = {sig: signal.signal(sig, _pending_for_watcher) for sig in self.SIGNALS}
+        self._previous = {sig: signal.signal(sig, self._request) for sig in self.SIGNALS}
         self._previous_fd = signal.set_wakeup_fd(self._writer.fileno(), warn_on_full_buffer=False)
-        self._watcher.start()
+        self._counter.start()
         return self
 
     def __exit__(self, *exc_info: object) -> None:
@@ -130,34 +130,33 @@ class StopRequest:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._writer.close()
-        self._watcher.join()
+        self._counter.join()
         self._reader.close()
 
-    def _watch(self) -> None:
-        """Act on each signal's byte until the writing end closes."""
+    def _request(self, signum: int, frame: Any) -> None:
+        """The Python-level handler: the stop is requested (the counting thread tells the user)."""
+        self.requested = True
+
+    def _count(self) -> None:
+        """Each signal's byte, until the writing end closes: the first asks for the stop, the next aborts."""
+        seen = 0
         while received := self._reader.recv(64):
             for signum in received:
-                if signum in self.SIGNALS:
-                    self.receive(signum)
-
-    def receive(self, signum: int) -> None:
-        """The first signal asks for a stop after the running iteration; the next one aborts."""
-        name = signal.Signals(signum).name
-        if self.requested:
-            print(f"\n{name} again: aborted without a checkpoint", file=sys.stderr, flush=True)
-            sys.stdout.flush()
-            os._exit(128 + signum)
-        self.requested = True
-        print(
-            f"\n{name}: stopping after this iteration and writing a checkpoint "
-            "(Ctrl-C again aborts without one)",
-            file=sys.stderr,
-            flush=True,
-        )
-
-
-def _pending_for_watcher(signum: int, frame: Any) -> None:
-    """The Python-level handler while :class:`StopRequest` watches: nothing (its thread has acted)."""
+                if signum not in self.SIGNALS:
+                    continue
+                name = signal.Signals(signum).name
+                seen += 1
+                if seen > 1:
+                    print(f"\n{name} again: aborted without a checkpoint", file=sys.stderr, flush=True)
+                    sys.stdout.flush()
+                    os._exit(128 + signum)
+                self.requested = True
+                print(
+                    f"\n{name}: stopping after this iteration and writing a checkpoint "
+                    "(Ctrl-C again aborts without one)",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
 
 @dataclasses.dataclass

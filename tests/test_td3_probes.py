@@ -18,7 +18,7 @@ from conftest import XLA_DEFAULTS
 
 from swat_jax.morphology import load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
-from swat_jax.td3.learner import Learner, LearnerState, TD3Config
+from swat_jax.td3.learner import Learner, LearnerState, TD3Config, project
 from swat_jax.td3.replay import Transitions
 
 FEATURES = 3
@@ -27,10 +27,14 @@ STRUCTURE = pad_structures([load("hopper_3"), load("cheetah_4_front")], max_limb
 MASK = np.asarray(STRUCTURE.limb_mask)
 
 
-def learner(discount: float = 0.5) -> Learner:
+def learner(discount: float = 0.5, atoms: int = 0) -> Learner:
+    """With ``atoms``: a distributional critic on [-2, 3] (every probe's values lie inside)."""
     config = network_config("amorpheus", width=32, heads=2, layers=1, feedforward=64)
-    actor, critic = make_actor_critic(config, FEATURES)
-    td3 = TD3Config(discount=discount, learning_rate=3e-3, max_grad_norm=10.0, batch_size=BATCH)
+    actor, critic = make_actor_critic(config, FEATURES, atoms)
+    td3 = TD3Config(
+        discount=discount, learning_rate=3e-3, max_grad_norm=10.0, batch_size=BATCH,
+        atoms=atoms, value_min=-2.0, value_max=3.0,
+    )  # fmt: skip
     return Learner(actor, critic, td3)
 
 
@@ -98,8 +102,8 @@ def train(td3: Learner, reward_fn, terminated: bool, updates: int) -> ProbeRun:
 
 
 def critic_values(td3: Learner, state, batch: Transitions) -> np.ndarray:
-    """Per-limb Q1 on real limbs [T, B, L] (NaN on padding)."""
-    q1, _ = jax.vmap(td3.critic.apply, in_axes=(None, 0, 0, 0))(
+    """Per-limb Q1 on real limbs [T, B, L] (NaN on padding); a distributional critic's mean."""
+    q1, _ = jax.vmap(td3._q_values, in_axes=(None, 0, 0, 0))(
         state.critic_params, batch.observation, batch.action, STRUCTURE
     )
     return np.where(MASK[:, None, :], np.asarray(q1), np.nan)
@@ -133,6 +137,36 @@ def test_critic_learns_the_value_of_a_constant_reward(terminated, expected):
     q = critic_values(td3, state, probe)
     assert np.nanmean(np.abs(q - expected)) < 0.1, np.nanmean(q)
     assert float(metrics["critic_loss"][-100:].mean()) < float(metrics["critic_loss"][:100].mean())
+
+
+def test_a_distributional_critic_learns_the_values_and_the_actor_the_best_action_from_it():
+    """C51 (21 atoms on [-2, 3]): the constant reward's Q (1 terminal, 2 bootstrapped), and the best action
+    through the distribution's mean. The three runs share one program."""
+    td3 = learner(atoms=21)
+    for terminated, expected in ((True, 1.0), (False, 2.0)):
+        _, state, metrics, probe = train(td3, constant_reward, terminated, 1500)
+        q = critic_values(td3, state, probe)
+        assert np.nanmean(np.abs(q - expected)) < 0.1, (terminated, np.nanmean(q))
+        assert float(metrics["critic_loss"][-100:].mean()) < float(metrics["critic_loss"][:100].mean())
+    _, state, _, probe = train(td3, matching_reward, True, 2000)
+    action = jax.vmap(td3.actor.apply, in_axes=(None, 0, 0))(state.actor_params, probe.observation, STRUCTURE)
+    error = np.abs(np.asarray(action) - 0.8 * np.asarray(probe.observation[..., 0]))
+    assert error[np.broadcast_to(MASK[:, None, :], error.shape)].mean() < 0.1
+
+
+def test_the_projection_keeps_probability_and_mean_and_clips_to_the_support():
+    support = jnp.linspace(-1.0, 1.0, 5)  # spacing 0.5
+    probabilities = jnp.array([0.1, 0.2, 0.3, 0.25, 0.15])
+    moved = 0.3 + 0.5 * support  # inside the support: r + discount * z
+    projected = np.asarray(project(probabilities, moved, support))
+    assert projected.min() >= 0 and projected.sum() == pytest.approx(1.0, abs=1e-6)
+    assert projected @ np.asarray(support) == pytest.approx(float(probabilities @ moved), abs=1e-6)
+    on_atoms = project(jnp.array([0.0, 1.0, 0.0, 0.0, 0.0]), support + 0.5, support)
+    np.testing.assert_allclose(on_atoms, [0.0, 0.0, 1.0, 0.0, 0.0], atol=1e-6)
+    between = project(jnp.array([1.0, 0.0, 0.0, 0.0, 0.0]), support + 0.1, support)
+    np.testing.assert_allclose(between, [0.8, 0.2, 0.0, 0.0, 0.0], atol=1e-6)
+    beyond = project(probabilities, support + 10.0, support)
+    np.testing.assert_allclose(beyond, [0.0, 0.0, 0.0, 0.0, 1.0], atol=1e-6)
 
 
 def test_critic_learns_an_observation_dependent_value():

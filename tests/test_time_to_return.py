@@ -33,6 +33,13 @@ def test_machine_seconds_per_seed_charge_every_core_to_the_seeds_run_at_once():
     assert ttr.machine_seconds(seeds, 1, 1) == ({300: 100.0}, {300: 120.0}), "one seed on one core"
 
 
+def test_the_final_return_leaves_out_the_points_past_the_budget():
+    curve = against.SeedCurves({"hopper_3": {400: 1.0, 600: 3.0, 900: 100.0}}, {})
+    assert against.final_returns([curve], MICRO, "hopper").values.tolist() == [3.0], "600 is the budget"
+    assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("hopper") == 1200, "rounded up to a point (300)"
+    assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("walker") == MICRO.budget("walker")
+
+
 def test_an_unknown_candidate_is_refused(tmp_path, capsys):
     status = ttr.main(["--dry-run", "--scale", "micro", "--candidates", "fastest", "--out", str(tmp_path)])
     assert status == 2 and "unknown candidate 'fastest'" in capsys.readouterr().err
@@ -79,6 +86,15 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
     assert ttr.main([*argv, "--candidates", "fast", "paper", "--report-only"]) == 0
     assert "| paper |" not in (out / "time_to_return.md").read_text(), "no paper run: left out"
     assert not (out / "runs" / "hopper-paper").exists()
+    final = next(line for line in report.splitlines() if line.startswith("| fast |")).split(" | ")[-2]
+    capsys.readouterr()
+    assert ttr.main([*argv, "--horizon", "2"]) == 0, "twice the budget: the run continues"
+    assert "resuming at 600 steps" in capsys.readouterr().err
+    with (out / "hopper.csv").open() as file:
+        longer = [row for row in csv.DictReader(file) if row["configuration"] == "fast"]
+    assert [int(row["counted_steps"]) for row in longer] == [300, 600, 900, 1200]
+    line = next(line for line in (out / "time_to_return.md").read_text().splitlines() if "| fast |" in line)
+    assert line.split(" | ")[-2] == final, "the final return stays the budget's"
 
 
 def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):

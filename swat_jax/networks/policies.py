@@ -31,11 +31,12 @@ Params = Any
 """A Flax variables pytree: ``{"params": {...}}``."""
 
 
-def limb_network(config: NetworkConfig, name: str) -> nn.Module:
-    """The per-limb network of the configured architecture: (limb_inputs, structure) -> [batch, limbs]."""
+def limb_network(config: NetworkConfig, name: str, outputs: int = 1) -> nn.Module:
+    """The per-limb network of the configured architecture: (limb_inputs, structure) -> [batch, limbs]
+    (transformers with ``outputs`` > 1: [batch, limbs, outputs])."""
     if config.architecture == "smp":
         return SharedModularPolicy(config, name=name)
-    return StructureAwareTransformer(config, name=name)
+    return StructureAwareTransformer(config, outputs, name=name)
 
 
 class Actor(nn.Module):
@@ -54,24 +55,39 @@ class Critic(nn.Module):
     """Twin Q networks; each limb's input is its observation concatenated with its action.
 
     Transformers: two independent networks, one Q value per limb, each limb with its own TD target
-    (:mod:`swat_jax.td3.learner`). SMP: one message passing with two heads, whose per-limb outputs sum
-    to the body's Q (:class:`~swat_jax.networks.smp.SharedModularCritic`).
+    (:mod:`swat_jax.td3.learner`), or with ``atoms`` the logits of a distribution of each limb's return
+    over that many atoms (C51, Bellemare et al. 2017, as FastTD3's critic). SMP: one message passing with
+    two heads, whose per-limb outputs sum to the body's Q (:class:`~swat_jax.networks.smp.SharedModularCritic`).
     """
 
     config: NetworkConfig
+    atoms: int = 0
+    """0: one Q value per limb; N >= 2: N logits per limb (transformers only)."""
+
+    def __post_init__(self) -> None:
+        if self.atoms and (self.atoms < 2 or self.config.architecture == "smp"):
+            raise ValueError(
+                f"a distributional critic needs 2 or more atoms and a transformer (swat or amorpheus); got "
+                f"{self.atoms} atoms with {self.config.architecture}"
+            )
+        super().__post_init__()
 
     @nn.compact
     def __call__(
         self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs]
-        (zero on padded limbs)."""
+        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs], or
+        [batch, limbs, atoms] logits with atoms (zero on padded limbs)."""
         if self.config.architecture == "smp":
             q_values = SharedModularCritic(self.config, name="q")(limb_obs, actions, structure)
         else:
             limb_inputs = jnp.concatenate([limb_obs, actions[..., None]], axis=-1)
-            q_values = (limb_network(self.config, name)(limb_inputs, structure) for name in ("q1", "q2"))
-        q1, q2 = (jnp.where(structure.limb_mask, q, 0.0) for q in q_values)
+            q_values = (
+                limb_network(self.config, name, max(1, self.atoms))(limb_inputs, structure)
+                for name in ("q1", "q2")
+            )
+        mask = structure.limb_mask[:, None] if self.atoms else structure.limb_mask
+        q1, q2 = (jnp.where(mask, q, 0.0) for q in q_values)
         return q1, q2
 
 
@@ -115,9 +131,12 @@ class LimbNetwork:
         return self.module.apply(params, *inputs, **kwargs)
 
 
-def make_actor_critic(config: NetworkConfig, obs_features: int) -> tuple[LimbNetwork, LimbNetwork]:
-    """The actor and the twin critic of ``config`` for ``obs_features`` observation values per limb."""
-    return LimbNetwork(Actor(config), obs_features), LimbNetwork(Critic(config), obs_features)
+def make_actor_critic(
+    config: NetworkConfig, obs_features: int, atoms: int = 0
+) -> tuple[LimbNetwork, LimbNetwork]:
+    """The actor and the twin critic of ``config`` for ``obs_features`` observation values per limb; a
+    distributional critic of ``atoms`` atoms per limb if not 0 (:class:`Critic`)."""
+    return LimbNetwork(Actor(config), obs_features), LimbNetwork(Critic(config, atoms), obs_features)
 
 
 def param_count(params: Params) -> int:

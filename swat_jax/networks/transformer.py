@@ -119,27 +119,33 @@ class TransformerLayer(nn.Module):
 
 
 class LimbDecoder(nn.Module):
-    """Per-limb decoder shared by all limbs: MLP(concat(final token, raw limb input)) -> one value."""
+    """Per-limb decoder shared by all limbs: MLP(concat(final token, raw limb input)) -> one value, or
+    ``outputs`` values (a distributional critic's logits)."""
 
     hidden: tuple[int, ...]
+    outputs: int = 1
 
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_inputs: jax.Array) -> jax.Array:
-        """tokens [batch, limbs, width], limb_inputs [batch, limbs, features] -> [batch, limbs]."""
+        """tokens [batch, limbs, width], limb_inputs [batch, limbs, features] -> [batch, limbs], or
+        [batch, limbs, outputs] when ``outputs`` > 1."""
         hidden = jnp.concatenate([tokens, limb_inputs], axis=-1)
         for size in self.hidden:
             hidden = nn.relu(nn.Dense(size)(hidden))
-        return nn.Dense(1)(hidden)[..., 0]
+        values = nn.Dense(self.outputs)(hidden)
+        return values[..., 0] if self.outputs == 1 else values
 
 
 class StructureAwareTransformer(nn.Module):
     """SWAT (section 4.3), or AMORPHEUS when the config selects no traversals and no relations."""
 
     config: NetworkConfig
+    outputs: int = 1
+    """Values per limb: 1, or a distributional critic's atoms."""
 
     @nn.compact
     def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> jax.Array:
-        """One value per limb.
+        """One value per limb (``outputs`` > 1: that many).
 
         Args:
             limb_inputs: [batch, limbs, features] raw per-limb input.
@@ -147,7 +153,8 @@ class StructureAwareTransformer(nn.Module):
                 [limbs, 3], relations [limbs, limbs, 3] (parents is not used).
 
         Returns:
-            [batch, limbs] decoder output (padded limbs hold unspecified values).
+            [batch, limbs] decoder output, [batch, limbs, outputs] with ``outputs`` > 1 (padded limbs hold
+            unspecified values).
         """
         config = self.config
         tokens = nn.Dense(config.width, name="limb_encoder")(limb_inputs) * math.sqrt(config.width)
@@ -165,4 +172,4 @@ class StructureAwareTransformer(nn.Module):
             tokens = TransformerLayer(config, name=f"layer_{layer}")(tokens, structure.limb_mask, layer_bias)
         if config.final_norm:
             tokens = nn.LayerNorm(config.layer_norm_epsilon, name="final_norm")(tokens)
-        return LimbDecoder(config.decoder_hidden, name="decoder")(tokens, limb_inputs)
+        return LimbDecoder(config.decoder_hidden, self.outputs, name="decoder")(tokens, limb_inputs)

@@ -94,7 +94,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = "paper"
-    """Preset that gave this run its defaults: paper (1 copy per body, the original schedule's 1 update per step) or fast (4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds and 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration, quirks fixed: chosen by time to return on a CPU, docs/training.md)."""
     seed: int = 0
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -187,6 +187,15 @@ class TrainConfig:
             )
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
+        if self.td3.atoms and (self.td3.atoms < 2 or self.algo == "smp"):
+            raise ConfigError(
+                f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
+                f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
+            )
+        if self.td3.atoms and not self.td3.value_min < self.td3.value_max:
+            raise ConfigError(
+                f"--td3.value-min ({self.td3.value_min}) must be below --td3.value-max ({self.td3.value_max})"
+            )
         require_positive("--eval-episodes", self.eval_episodes)
         require_positive("--limb-buckets", self.limb_buckets)
         if self.smp_hidden is not None:

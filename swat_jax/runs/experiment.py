@@ -73,7 +73,7 @@ class Experiment:
         )
         if config.init_from:
             check_transfer(config, env.observation_features)
-        actor, critic = make_actor_critic(network, env.observation_features)
+        actor, critic = make_actor_critic(network, env.observation_features, config.td3.atoms)
         devices = jax.devices() if devices is None else devices
         layout = placement(config.seeds, env.num_bodies, config.copies, devices)
         # A bucket gathers tasks across the task axis: only where that axis is not split over devices.

@@ -7,7 +7,7 @@ instead of the set's largest (the same losses, fewer FLOPs: padded limbs never c
 output). A task of one body gives exactly the original code's update of that body.
 
 The transformer critics give one Q value per limb and every limb is regressed on its own TD target, as
-the original SWAT code does (its ``TD3.py``):
+the original SWAT code does (its ``TD3.py``), or with ``atoms`` a distribution of it (C51, below):
 
     y_l = r + discount * (1 - terminated) * min(Q1'_l(s', a'), Q2'_l(s', a')),
     loss = mean over batch and real limbs of (Q1_l - y_l)^2 + (Q2_l - y_l)^2
@@ -18,6 +18,11 @@ sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same
 one "limb". The actor maximises the mean over limbs (SMP: the sum) of Q1 and is updated every
 ``policy_delay`` critic updates, or when the caller says so (``delayed``: the original schedule's phase);
 target networks follow with rate ``tau`` after each actor update.
+
+A distributional critic (``TD3Config.atoms``, FastTD3's) gives each limb's return as probabilities over
+atoms z on [value_min, value_max]; its target is the lower-mean one of the two target distributions, its
+atoms moved to r + discount * (1 - terminated) * z and projected onto the support, and both critics
+minimise the cross-entropy to it. Q is the distribution's mean wherever a value is needed (the actor).
 """
 
 from __future__ import annotations
@@ -55,6 +60,14 @@ class TD3Config:
     """Global gradient-norm clip of each network's update."""
     batch_size: int = 100
     """Transitions sampled per task per update."""
+    atoms: int = 0
+    """0: each critic gives a Q value per limb (TD3). N >= 2: a distribution of each limb's return over N
+    atoms evenly spaced on [value_min, value_max], trained by cross-entropy on the projected target
+    distribution (C51, Bellemare et al. 2017; FastTD3's critic, Seo et al. 2025)."""
+    value_min: float = -100.0
+    """Smallest atom of the distributional critic: returns below it count as it."""
+    value_max: float = 400.0
+    """Largest atom of the distributional critic: returns above it count as it."""
 
 
 @struct.dataclass
@@ -81,6 +94,19 @@ class Learner:
     buckets: tuple[LimbBucket, ...] = ()
     """Task groups computed at their own limb count (:func:`~swat_jax.morphology.limb_buckets`); empty:
     every task at the padded limb count."""
+
+    def __post_init__(self) -> None:
+        atoms = getattr(self.critic.module, "atoms", 0)
+        if atoms != self.config.atoms:
+            raise ValueError(f"the critic has {atoms} atoms, the TD3 config {self.config.atoms}")
+        if self.config.atoms and not self.config.value_min < self.config.value_max:
+            raise ValueError(
+                f"value_min ({self.config.value_min}) must be below value_max ({self.config.value_max})"
+            )
+
+    def support(self) -> jax.Array:
+        """[atoms] the returns the distributional critic's atoms stand for."""
+        return jnp.linspace(self.config.value_min, self.config.value_max, self.config.atoms)
 
     def optimizer(self) -> optax.GradientTransformation:
         return optax.chain(
@@ -218,21 +244,51 @@ class Learner:
         structure: StructureBatch,
         noise: jax.Array,
     ) -> jax.Array:
-        """Mean squared TD error of one task over its batch and real limbs (SMP: over its batch);
-        ``noise`` [B, L] standard normal."""
+        """Mean squared TD error of one task over its batch and real limbs (SMP: over its batch), or with
+        atoms its cross-entropy (:meth:`_distributional_errors`); ``noise`` [B, L] standard normal."""
         mask = structure.limb_mask
         noise = jnp.clip(self.config.policy_noise * noise, -self.config.noise_clip, self.config.noise_clip)
         next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
         next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
+        continues = self.config.discount * (1.0 - batch.terminated[:, None])
+        if self.config.atoms:
+            errors = self._distributional_errors(
+                critic_params, target_critic_params, batch, next_action, structure, continues
+            )
+            return _masked_mean(errors, mask)
         target_q1, target_q2 = self._q_values(
             target_critic_params, batch.next_observation, next_action, structure
         )
         next_value = jnp.minimum(target_q1, target_q2)
-        target = batch.reward[:, None] + self.config.discount * (1.0 - batch.terminated[:, None]) * next_value
-        target = jax.lax.stop_gradient(target)
+        target = jax.lax.stop_gradient(batch.reward[:, None] + continues * next_value)
         q1, q2 = self._q_values(critic_params, batch.observation, batch.action, structure)
         squared = (q1 - target) ** 2 + (q2 - target) ** 2
         return _masked_mean(squared, self._value_mask(mask))
+
+    def _distributional_errors(
+        self,
+        critic_params: Params,
+        target_critic_params: Params,
+        batch: Transitions,
+        next_action: jax.Array,
+        structure: StructureBatch,
+        continues: jax.Array,
+    ) -> jax.Array:
+        """[B, L] cross-entropy of both critics' distributions against the target: of the two target
+        critics, the distribution whose mean is lower (the clipped double Q of TD3), its atoms moved to
+        r + continues * z and projected back onto the support (:func:`project`); ``continues`` [B, 1]."""
+        support = self.support()
+        next1, next2 = (
+            jax.nn.softmax(logits)
+            for logits in self.critic.apply(
+                target_critic_params, batch.next_observation, next_action, structure
+            )
+        )
+        lower = (next1 @ support < next2 @ support)[..., None]
+        moved = batch.reward[:, None, None] + continues[..., None] * support
+        target = jax.lax.stop_gradient(project(jnp.where(lower, next1, next2), moved, support))
+        logits1, logits2 = self.critic.apply(critic_params, batch.observation, batch.action, structure)
+        return -jnp.sum(target * (jax.nn.log_softmax(logits1) + jax.nn.log_softmax(logits2)), axis=-1)
 
     def _actor_loss(
         self, actor_params: Params, critic_params: Params, batch: Transitions, structure: StructureBatch
@@ -247,8 +303,11 @@ class Learner:
     def _q_values(
         self, critic_params: Params, observation: jax.Array, action: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """(Q1, Q2), each [B, L] per limb, or [B, 1] when the critic sums its limbs' values (SMP)."""
+        """(Q1, Q2), each [B, L] per limb (a distributional critic's means), or [B, 1] when the critic sums
+        its limbs' values (SMP)."""
         q1, q2 = self.critic.apply(critic_params, observation, action, structure)
+        if self.config.atoms:
+            return jax.nn.softmax(q1) @ self.support(), jax.nn.softmax(q2) @ self.support()
         if self.critic.module.config.sums_limb_values:
             return jnp.sum(q1, axis=-1, keepdims=True), jnp.sum(q2, axis=-1, keepdims=True)
         return q1, q2
@@ -287,6 +346,17 @@ def _without_delayed_step(
     """The branch of ``update`` without the delayed step: ``state`` untouched (actor and targets
     included) and a [] actor loss of 0."""
     return state, jnp.zeros((), jnp.float32)
+
+
+def project(probabilities: jax.Array, moved: jax.Array, support: jax.Array) -> jax.Array:
+    """The distribution with ``probabilities`` [..., A] on the atoms ``moved`` [..., A] (clipped to the
+    support), projected onto ``support`` [A] (evenly spaced): each atom's probability split between its
+    two neighbours on the support in proportion to closeness (C51's projection, Bellemare et al. 2017,
+    Algorithm 1). Keeps the total probability, and the mean where nothing is clipped."""
+    spacing = (support[-1] - support[0]) / (support.shape[0] - 1)
+    moved = jnp.clip(moved, support[0], support[-1])
+    closeness = jnp.clip(1.0 - jnp.abs(moved[..., :, None] - support) / spacing, 0.0, 1.0)
+    return jnp.einsum("...j,...ji->...i", probabilities, closeness)
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
