@@ -103,6 +103,8 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "fast-c4-k16-u64-b100-2dev": recipe(4, 16, 64, 100),
     "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
     "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "3e-3"),
+    "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "2e-3"),
+    "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, "--td3.learning-rate", "3e-3"),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, *noise(0.05, 0.4)),
     "fast-n0.05-0.4-2dev": ("--preset", "fast", *noise(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, *C51),
