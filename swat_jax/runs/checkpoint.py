@@ -232,9 +232,8 @@ class Checkpoints:
         dropped (:class:`AbandonedReadsFilter`), from the restore on, and after a failed one for good.
         """
         previous = sys.unraisablehook
-        if not isinstance(previous, AbandonedReadsFilter):
-            sys.unraisablehook = AbandonedReadsFilter(previous)
-        abandoned = AbandonedReadsFilter(previous)
+        abandoned = previous if isinstance(previous, AbandonedReadsFilter) else AbandonedReadsFilter(previous)
+        sys.unraisablehook = abandoned
         ASYNCIO_LOG.addFilter(abandoned)
         try:
             restored = self.manager.restore(step, args=ocp.args.Composite(**items))

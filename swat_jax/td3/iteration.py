@@ -9,8 +9,8 @@ replay buffer holds one ring per task. The update schedule (:attr:`IterationConf
 reference code's by default: the tasks one after another, each taking its run of updates on its own
 batches (its ``TD3.train``); ``all_tasks`` instead vmaps every update's losses over all tasks. Exploration
 follows the paper: uniform random actions for each task's first ``random_steps`` steps, then the policy
-plus Gaussian noise (std ``exploration_noise``, or one per copy: :func:`exploration_scales`), clipped to [-1, 1]. Updates start once every task's
-buffer holds a full batch.
+plus Gaussian noise (std ``exploration_noise``, or one per copy: :func:`exploration_scales`), clipped to
+[-1, 1]. Updates start once every task's buffer holds a full batch.
 
 Seeds are one more batch axis: :func:`make_seeded_train_iteration` runs the iteration over a leading
 seed axis of the state (:data:`SEED_AXES`), so N independent runs are one compiled program.
