@@ -3,7 +3,7 @@
 The ``original`` schedule runs, body after body, a fixed ``updates`` per body without rounds; with rounds
 (``--iteration.rounds``) each seed takes its own count (its counted steps / bodies), so the loop runs the
 largest seed's count of slots and the other seeds skip the slots past theirs. This times one iteration's
-update phase (``make_updates``) on a replay of random rows, for several seeds in one program: the fixed
+update phase (``make_update_phase``) on a replay of random rows, for several seeds in one program: the fixed
 ``chunk`` updates per body (the baseline) and per-seed counts, all equal to ``chunk`` and spread below it,
 and prints each against the baseline measured in the same run (per slot: per update the loop runs).
 
@@ -25,9 +25,9 @@ from machine import cpu_model
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
-from swat_jax.td3.iteration import IterationConfig, make_updates
 from swat_jax.td3.learner import Learner, TD3Config
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer
+from swat_jax.td3.schedules import make_update_phase
 
 CHUNK = 100
 FEATURES = 19
@@ -81,15 +81,14 @@ def main() -> None:
     )
     actor, critic = make_actor_critic(network, FEATURES)
     learner = Learner(actor, critic, TD3Config(batch_size=100), ())
-    config = IterationConfig(chunk=CHUNK, updates=CHUNK, schedule="original")
     seeds, tasks = args.seeds, len(bodies)
     replay = random_replay(seeds, tasks, args.capacity, limbs, jax.random.PRNGKey(0))
     state = jax.vmap(learner.init)(jax.random.split(jax.random.PRNGKey(1), seeds))
-    state = state.replace(updates=state.updates[0])
+    state = state.replace(critic_steps=state.critic_steps[0])
     rngs = jax.random.split(jax.random.PRNGKey(2), seeds)
 
-    fixed = jax.jit(make_updates(structure, learner, config, seeds=seeds))
-    counted = jax.jit(make_updates(structure, learner, config, seeds=seeds, most_updates=CHUNK))
+    fixed = jax.jit(make_update_phase(structure, learner, "original", CHUNK, seeds))
+    counted = jax.jit(make_update_phase(structure, learner, "original", CHUNK, seeds, counted=True))
     baseline = seconds_per_call(fixed, state, replay, rngs, repeats=args.repeats)
     cases = [(f"no rounds: {CHUNK} updates per body", baseline, CHUNK)]
     spread = jnp.linspace(0.7 * CHUNK, 0.85 * CHUNK, seeds).astype(jnp.int32)

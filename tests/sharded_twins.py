@@ -103,7 +103,7 @@ def main(folder: Path, out: Path) -> None:
                 "meshes": meshes,
                 "after_training": after_training,
                 "after_resume": after_resume,
-                "env_steps": [state.env_steps.item() for state in resumed],
+                "steps_per_task": [state.steps_per_task.item() for state in resumed],
                 "copies_differ": bool(np.all(variants[:, 0] != variants[:, 1])),
                 "seeds_share_variants": bool(np.array_equal(variants[0], variants[1])),
                 "eval_returns": [result.returns.tolist() for result in evaluation],

@@ -169,7 +169,7 @@ def test_two_td3_updates_equal_the_original(architecture):
         target_critic_params=params["critic"],
         actor_optimizer=optimizer.init(params["actor"]),
         critic_optimizer=optimizer.init(params["critic"]),
-        updates=jnp.zeros((), jnp.int32),
+        critic_steps=jnp.zeros((), jnp.int32),
     )
     update = jax.jit(learner.update_with_noise)
     for step in range(2):

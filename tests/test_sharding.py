@@ -75,7 +75,7 @@ def test_checkpoints_resume_on_the_other_layout(sharded_twins):
         "mesh of 1 cpu device: seeds 1 x tasks 1",
         sharded_twins["meshes"][0],
     ]
-    assert sharded_twins["env_steps"] == [60, 60], "per body: 3 iterations of 2 copies x 10 steps"
+    assert sharded_twins["steps_per_task"] == [60, 60], "per body: 3 iterations of 2 copies x 10 steps"
     assert sharded_twins["after_resume"]["integers_equal"]
     assert sharded_twins["after_resume"]["relative"] < 1e-3
 

@@ -204,4 +204,4 @@ def test_actor_and_targets_update_every_second_step():
     _, state, _, _ = train(td3, constant_reward, True, 2)
     assert not unchanged(state.actor_params, initial.actor_params), "after two updates the actor has moved"
     assert not unchanged(state.target_critic_params, initial.target_critic_params)
-    assert int(state.updates) == 2
+    assert int(state.critic_steps) == 2

@@ -453,7 +453,7 @@ def test_init_from_starts_every_seed_from_the_chosen_seed_of_another_run(
         for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(theirs), strict=True):
             for seed in range(config.seeds):
                 np.testing.assert_array_equal(a[seed], b[1], err_msg=name)
-    assert int(state.buffer.size) == 0 and int(state.learner.updates) == 0
+    assert int(state.buffer.size) == 0 and int(state.learner.critic_steps) == 0
     adam = state.learner.actor_optimizer[1][0]
     assert not any(np.any(leaf) for leaf in jax.tree_util.tree_leaves(adam.mu)), "a fresh optimizer"
 

@@ -16,14 +16,10 @@ from swat_jax.envs import MultiTaskEnv
 from swat_jax.morphology import limb_buckets, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig
-from swat_jax.td3.iteration import (
-    IterationConfig,
-    init_train_state,
-    make_train_iteration,
-    make_updates,
-)
+from swat_jax.td3.iteration import IterationConfig, init_train_state, make_train_iteration, seed_keys
 from swat_jax.td3.learner import Learner, LearnerState, TD3Config
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, sample
+from swat_jax.td3.schedules import make_update_phase
 
 BODIES = ("hopper_3", "cheetah_4_front")
 LIMBS = 4
@@ -50,8 +46,8 @@ TASK_UPDATE = jax.jit(dataclasses.replace(LEARNER, buckets=()).update)
 
 
 def adam_steps(optimizer_state: optax.OptState) -> int:
-    """The Adam step count of a learner's optimizer state (clip, then Adam)."""
-    return int(optax.tree_utils.tree_get(optimizer_state, "count"))
+    """The Adam step count of the first seed's optimizer state (clip, then Adam)."""
+    return int(np.ravel(optax.tree_utils.tree_get(optimizer_state, "count"))[0])
 
 
 @pytest.fixture(scope="module")
@@ -62,10 +58,10 @@ def env() -> MultiTaskEnv:
 
 @pytest.fixture(scope="module")
 def single_seed_run(env):
-    """Two iterations of the plain original-schedule iteration from seed 6: the initial learner, then the
-    state and metrics after each."""
+    """Two iterations of a one-seed original-schedule run from seed 6: the initial learner, then the state and
+    metrics after each."""
     step = jax.jit(make_train_iteration(env, STRUCTURE, LEARNER, CONFIG))
-    state = jax.jit(lambda key: init_train_state(env, LEARNER, CONFIG, key))(jax.random.PRNGKey(6))
+    state = jax.jit(lambda keys: init_train_state(env, LEARNER, CONFIG, keys))(seed_keys(6, 1))
     initial = state.learner
     after = []
     for _ in range(2):
@@ -78,12 +74,12 @@ def test_an_iteration_trains_body_after_body_with_the_actor_first_in_every_run(s
     initial, after = single_seed_run
     for iteration, (state, metrics) in enumerate(after, start=1):
         assert int(state.buffer.size) == 8 * iteration
-        assert int(state.learner.updates) == iteration * UPDATES, "bodies x updates per iteration"
+        assert int(state.learner.critic_steps) == iteration * UPDATES, "bodies x updates per iteration"
         assert adam_steps(state.learner.critic_optimizer) == iteration * UPDATES
         assert adam_steps(state.learner.actor_optimizer) == iteration * len(ACTOR_STEPS)
-        assert metrics["critic_loss"].shape == metrics["actor_loss"].shape == (UPDATES,)
+        assert metrics["critic_loss"].shape == metrics["actor_loss"].shape == (1, UPDATES)
         assert np.all(np.asarray(metrics["critic_loss"]) > 0)
-        stepped = np.flatnonzero(np.asarray(metrics["actor_loss"]))
+        stepped = np.flatnonzero(np.asarray(metrics["actor_loss"][0]))
         assert stepped.tolist() == ACTOR_STEPS, "it restarts at 0 for every body and every iteration"
     state, _ = after[0]
     for name in ("actor_params", "target_actor_params", "target_critic_params"):
@@ -117,7 +113,7 @@ def by_hand(
 ) -> tuple[LearnerState, list[float]]:
     """The reference code's TD3.train written out: for each body, its run of ``count`` updates on batches
     sampled from its ring alone, ``Learner.update`` on one-task batches with the actor stepping when
-    it % policy_delay == 0; with the keys make_updates documents. Returns the state and the critic losses in order."""
+    it % policy_delay == 0; with the keys make_update_phase documents. Returns the state and the critic losses in order."""
     keys = jax.random.split(rng, (len(BODIES), CONFIG.updates))
     losses = []
     for task in range(len(BODIES)):
@@ -131,42 +127,44 @@ def by_hand(
     return state, losses
 
 
-def test_the_per_body_scan_is_the_reference_loop_of_one_task_updates():
-    initial = LEARNER.init(jax.random.PRNGKey(0))
-    buffer = random_buffer(jax.random.PRNGKey(1), rows=16)
-    rng = jax.random.PRNGKey(2)
-    updates = jax.jit(make_updates(STRUCTURE, LEARNER, CONFIG))
-    state, metrics = updates(initial, buffer, rng)
-    expected, losses = by_hand(initial, buffer, rng)
-    for got, want in zip(jax.tree.leaves(state), jax.tree.leaves(expected), strict=True):
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(metrics["critic_loss"], losses, rtol=1e-5)
-
-    unfilled, skipped = updates(initial, buffer.replace(size=jnp.int32(7)), rng)
-    assert int(unfilled.updates) == 0 and not np.any(np.asarray(skipped["critic_loss"])), (
-        "no update before the buffer holds a batch"
-    )
-
-
 def stacked(trees: list[Any]) -> Any:
     """``trees`` stacked on a new leading (seed) axis."""
     return jax.tree.map(lambda *leaves: jnp.stack(leaves), *trees)
 
 
+def seeded(learners: list[LearnerState], buffers: list[ReplayBuffer]) -> tuple[LearnerState, ReplayBuffer]:
+    """One learner state and buffer per seed as a state with a seed axis (the step counters shared)."""
+    learner = stacked(learners).replace(critic_steps=learners[0].critic_steps)
+    return learner, buffers[0].replace(data=stacked([buffer.data for buffer in buffers]))
+
+
+def test_the_per_body_scan_is_the_reference_loop_of_one_task_updates():
+    initial = LEARNER.init(jax.random.PRNGKey(0))
+    buffer = random_buffer(jax.random.PRNGKey(1), rows=16)
+    rng = jax.random.PRNGKey(2)
+    update_phase = jax.jit(make_update_phase(STRUCTURE, LEARNER, "original", CONFIG.updates, seeds=1))
+    state, metrics = update_phase(*seeded([initial], [buffer]), rng[None])
+    expected, losses = by_hand(initial, buffer, rng)
+    for got, want in zip(jax.tree.leaves(state), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(got if got.shape == want.shape else got[0], want, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(metrics["critic_loss"][0], losses, rtol=1e-5)
+
+    learner, unfilled_buffer = seeded([initial], [buffer.replace(size=jnp.int32(7))])
+    unfilled, skipped = update_phase(learner, unfilled_buffer, rng[None])
+    assert int(unfilled.critic_steps) == 0 and not np.any(np.asarray(skipped["critic_loss"])), (
+        "no update before the buffer holds a batch"
+    )
+
+
 def test_seed_k_of_two_seeds_is_the_reference_loop_of_seed_k():
-    """The updates of a two-seed state (:data:`~swat_jax.td3.iteration.SEED_AXES`: every array but the shared
-    step counters has a seed axis; tests/test_td3_iteration.py checks the seed axis of collection) are each
-    seed's own."""
+    """The updates of a two-seed state (every array but the shared step counters has a seed axis;
+    tests/test_td3_iteration.py checks the seed axis of collection) are each seed's own."""
     initial = [LEARNER.init(key) for key in jax.random.split(jax.random.PRNGKey(3), 2)]
     buffers = [random_buffer(key, rows=16) for key in jax.random.split(jax.random.PRNGKey(4), 2)]
     rngs = jax.random.split(jax.random.PRNGKey(5), 2)
-    seeded = jax.jit(make_updates(STRUCTURE, LEARNER, CONFIG, seeds=2))
-    state, metrics = seeded(
-        stacked(initial).replace(updates=initial[0].updates),
-        buffers[0].replace(data=stacked([buffer.data for buffer in buffers])),
-        rngs,
-    )
-    assert metrics["critic_loss"].shape == (2, UPDATES) and state.updates.shape == ()
+    update_phase = jax.jit(make_update_phase(STRUCTURE, LEARNER, "original", CONFIG.updates, seeds=2))
+    state, metrics = update_phase(*seeded(initial, buffers), rngs)
+    assert metrics["critic_loss"].shape == (2, UPDATES) and state.critic_steps.shape == ()
     for seed in range(2):
         expected, losses = by_hand(initial[seed], buffers[seed], rngs[seed])
         for seeds, one in zip(jax.tree.leaves(state), jax.tree.leaves(expected), strict=True):
@@ -182,13 +180,8 @@ def test_with_update_counts_each_seed_takes_its_own_number_of_updates_per_body()
     buffers = [random_buffer(key, rows=16) for key in jax.random.split(jax.random.PRNGKey(8), 2)]
     rngs = jax.random.split(jax.random.PRNGKey(9), 2)
     counts = jnp.array([CONFIG.updates, 1], jnp.int32)
-    seeded = jax.jit(make_updates(STRUCTURE, LEARNER, CONFIG, seeds=2, most_updates=CONFIG.updates))
-    state, metrics = seeded(
-        stacked(initial).replace(updates=initial[0].updates),
-        buffers[0].replace(data=stacked([buffer.data for buffer in buffers])),
-        rngs,
-        counts,
-    )
+    update_phase = make_update_phase(STRUCTURE, LEARNER, "original", CONFIG.updates, seeds=2, counted=True)
+    state, metrics = jax.jit(update_phase)(*seeded(initial, buffers), rngs, counts)
     for seed, count in enumerate(counts.tolist()):
         expected, losses = by_hand(initial[seed], buffers[seed], rngs[seed], count)
         for name in ("critic_params", "actor_params", "target_critic_params", "critic_optimizer"):

@@ -35,6 +35,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from swat_jax import axes
 from swat_jax.envs.body import BodyEnv, EnvState, Variant
 from swat_jax.envs.physics import Physics
 from swat_jax.morphology.mjcf import load
@@ -65,15 +66,15 @@ class MultiTaskState:
     """All copies of all bodies; K bodies, n copies, L = max_limbs, F features. With runs, every array has
     a leading run axis [R] before the shapes below."""
 
-    bodies: tuple[EnvState, ...]
+    bodies: tuple[EnvState, ...] = axes.field(copy=0)
     """K per-body states, each with a leading copy axis [n]."""
-    observation: jax.Array
+    observation: jax.Array = axes.field(task=0, copy=1)
     """[K, n, L, F] observations to act on (after any automatic reset), zero on padded limbs."""
     rng: jax.Array
     """Key for the reset noise of the next automatic resets."""
     episodes: EpisodeStats
     """Finished-episode sums per body [K], for logging; clear with ``state.replace(episodes=...)``."""
-    round_ended: jax.Array
+    round_ended: jax.Array = axes.field(task=0, copy=1)
     """[K, n] bool: with lock-step rounds, copies whose first episode of the current round has ended (all
     False without)."""
 

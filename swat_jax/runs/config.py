@@ -33,8 +33,9 @@ from swat_jax.morphology import SETS, get_set, load
 from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
 from swat_jax.networks.smp import most_children
-from swat_jax.td3.iteration import SCHEDULES, IterationConfig
+from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
+from swat_jax.td3.schedules import SCHEDULES
 
 Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
 Preset = Literal["paper", "intended", "fast"]

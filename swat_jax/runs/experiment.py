@@ -29,12 +29,7 @@ from swat_jax.runs.checkpoint import CheckpointInfo, Checkpoints
 from swat_jax.runs.config import ConfigError, TrainConfig
 from swat_jax.runs.trained import check_transfer, network_items, restore_networks
 from swat_jax.td3.evaluation import Episodes, make_evaluation
-from swat_jax.td3.iteration import (
-    TrainState,
-    init_seeded_train_state,
-    make_seeded_train_iteration,
-    seed_keys,
-)
+from swat_jax.td3.iteration import TrainState, init_train_state, make_train_iteration, seed_keys
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.sharding import Placement, placement
 
@@ -86,7 +81,7 @@ class Experiment:
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
-        a leading seed axis (:data:`~swat_jax.td3.iteration.SEED_AXES`).
+        a leading seed axis (:func:`swat_jax.axes.seed_axes`).
 
         With ``config.init_from``, every seed's actor, critic and target networks are those of the chosen
         seed of that run (optimizers and replay buffers stay fresh).
@@ -139,7 +134,7 @@ class Experiment:
     def _initial_state(self) -> Callable[[jax.Array], TrainState]:
         """The fresh state of every seed from their keys [S]; one function object, so that JAX's trace
         cache serves :attr:`state_shapes` and :meth:`init_state` with one trace."""
-        return functools.partial(init_seeded_train_state, self.env, self.learner, self.config.iteration)
+        return functools.partial(init_train_state, self.env, self.learner, self.config.iteration)
 
     def _placed(self, state: TrainState) -> TrainState:
         """Every array of ``state`` committed to its place on the mesh.
@@ -158,7 +153,7 @@ class Experiment:
         input state and returns the state placed as it came."""
         shardings = self.placement.state_shardings(self.state_shapes)
         return jax.jit(
-            make_seeded_train_iteration(self.env, self.tasks.structure, self.learner, self.config.iteration),
+            make_train_iteration(self.env, self.tasks.structure, self.learner, self.config.iteration),
             in_shardings=(shardings,),
             out_shardings=(shardings, self.placement.seeded()),
             donate_argnums=0,

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from swat_jax import axes
 from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, bucket_structures
 from swat_jax.networks.policies import LimbNetwork, Params
 from swat_jax.td3.replay import Transitions
@@ -80,8 +81,8 @@ class LearnerState:
     target_critic_params: Params
     actor_optimizer: optax.OptState
     critic_optimizer: optax.OptState
-    updates: jax.Array
-    """[] int32 critic updates done."""
+    critic_steps: jax.Array = axes.field(seeded=False)
+    """[] int32 critic steps taken (one per update), shared by the seeds."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,7 +124,7 @@ class Learner:
             target_critic_params=jax.tree_util.tree_map(jnp.copy, critic_params),
             actor_optimizer=self.optimizer().init(actor_params),
             critic_optimizer=self.optimizer().init(critic_params),
-            updates=jnp.zeros((), jnp.int32),
+            critic_steps=jnp.zeros((), jnp.int32),
         )
 
     def update(
@@ -141,7 +142,7 @@ class Learner:
             structure: [T, ...] structure of the tasks.
             rng: key for the target policy smoothing noise.
             delayed: [] bool: take the actor and target step in this update; None: in every
-                ``policy_delay``-th update (``state.updates + 1`` a multiple of it).
+                ``policy_delay``-th update (``state.critic_steps + 1`` a multiple of it).
         """
         noise = jax.random.normal(rng, batch.action.shape)
         return self.update_with_noise(state, batch, structure, noise, delayed)
@@ -160,14 +161,14 @@ class Learner:
         critic_loss, critic_grads = jax.value_and_grad(self._critic_loss)(
             state.critic_params, state, batch, structure, noise
         )
-        critic_updates, critic_optimizer = self.optimizer().update(
+        critic_step, critic_optimizer = self.optimizer().update(
             critic_grads, state.critic_optimizer, state.critic_params
         )
-        critic_params = optax.apply_updates(state.critic_params, critic_updates)
+        critic_params = optax.apply_updates(state.critic_params, critic_step)
         stepped = state.replace(critic_params=critic_params, critic_optimizer=critic_optimizer)
 
         if delayed is None:
-            delayed = (state.updates + 1) % self.config.policy_delay == 0
+            delayed = (state.critic_steps + 1) % self.config.policy_delay == 0
         next_state, actor_loss = jax.lax.cond(
             delayed,
             self.delayed_step,
@@ -176,7 +177,7 @@ class Learner:
             batch,
             structure,
         )
-        next_state = next_state.replace(updates=state.updates + 1)
+        next_state = next_state.replace(critic_steps=state.critic_steps + 1)
         return next_state, {"critic_loss": critic_loss, "actor_loss": actor_loss}
 
     def delayed_step(
@@ -217,8 +218,8 @@ class Learner:
         """The delayed actor step of ``update``: one Adam step on the actor loss; returns the new actor
         parameters, optimizer state and the loss."""
         loss, grads = jax.value_and_grad(self._actor_loss)(actor_params, critic_params, batch, structure)
-        updates, actor_optimizer = self.optimizer().update(grads, actor_optimizer, actor_params)
-        return optax.apply_updates(actor_params, updates), actor_optimizer, loss
+        steps, actor_optimizer = self.optimizer().update(grads, actor_optimizer, actor_params)
+        return optax.apply_updates(actor_params, steps), actor_optimizer, loss
 
     def _critic_loss(
         self,

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from swat_jax import axes
 from swat_jax.morphology.batch import LimbBucket, bucket_slice
 
 GIB = 2**30
@@ -50,10 +51,10 @@ class Transitions:
 class ReplayBuffer:
     """Transitions [T, C, ...] with a shared ring-buffer write position and fill level."""
 
-    data: Transitions
-    position: jax.Array
+    data: Transitions = axes.field(task=0)
+    position: jax.Array = axes.field(seeded=False)
     """[] int32 next row to write, in [0, C)."""
-    size: jax.Array
+    size: jax.Array = axes.field(seeded=False)
     """[] int32 rows filled, at most C."""
 
     @property

@@ -1,7 +1,7 @@
 """The training state on a device mesh: seeds first, then tasks (JAX's SPMD partitioning, no process pool).
 
 The mesh has two axes. ``seeds`` splits the leading seed axis of every seeded array
-(:data:`~swat_jax.td3.iteration.SEED_AXES`): independent runs, so no communication. ``tasks`` splits what
+(:func:`swat_jax.axes.seed_axes`): independent runs, so no communication. ``tasks`` splits what
 is per task within a seed: each task's replay ring and its part of the update (the mean over tasks of
 the losses becomes a cross-device reduction that XLA inserts), and each body's environment copies.
 Parameters and optimizer states are replicated over ``tasks``; step counters everywhere.
@@ -25,33 +25,11 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from swat_jax.envs.multi_task import MultiTaskState
-from swat_jax.td3.iteration import SEED_AXES, TrainState
-from swat_jax.td3.replay import ReplayBuffer
+from swat_jax import axes
+from swat_jax.td3.iteration import TrainState
 
 SEEDS = "seeds"
 TASKS = "tasks"
-
-
-def task_axes(tasks_split: bool, copies_split: bool) -> TrainState:
-    """Per field of a single-seed :class:`TrainState`, the axis split over ``tasks`` (None: replicated):
-    the task axis of the replay data [K, capacity, ...] and of the observations [K, n, L, F], or the copy
-    axis of every body's environment state [n, ...] and of the observations."""
-    observation = 1 if copies_split else (0 if tasks_split else None)
-    return TrainState(
-        learner=None,
-        buffer=ReplayBuffer(data=0 if tasks_split else None, position=None, size=None),
-        env=MultiTaskState(
-            bodies=0 if copies_split else None,
-            observation=observation,
-            rng=None,
-            episodes=None,
-            round_ended=observation,
-        ),
-        rng=None,
-        env_steps=None,
-        counted=None,
-    )
 
 
 def mesh_shape(seeds: int, tasks: int, copies: int, devices: int) -> tuple[int, int]:
@@ -79,11 +57,11 @@ class Placement:
 
     def state_shardings(self, state: TrainState) -> TrainState:
         """A NamedSharding per array of a seeded ``state`` (arrays or ShapeDtypeStructs)."""
-        seed_axes = jax.tree.broadcast(SEED_AXES, state, is_leaf=lambda x: x is None)
-        split_axes = jax.tree.broadcast(
-            task_axes(self.tasks_split, self.copies_split), state, is_leaf=lambda x: x is None
+        seeded = jax.tree.broadcast(axes.seed_axes(state), state, is_leaf=lambda x: x is None)
+        split = jax.tree.broadcast(
+            axes.split_axes(state, self.tasks_split, self.copies_split), state, is_leaf=lambda x: x is None
         )
-        return jax.tree.map(self._sharding, state, seed_axes, split_axes, is_leaf=lambda x: x is None)
+        return jax.tree.map(self._sharding, state, seeded, split, is_leaf=lambda x: x is None)
 
     def seeded(self) -> NamedSharding:
         """The sharding of an array whose leading axis is the seed axis (metrics, evaluation results)."""
