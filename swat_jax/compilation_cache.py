@@ -119,6 +119,8 @@ def compile_cached(
     """The ``jax.stages.Compiled`` program of ``build()`` (a ``jax.jit`` result) for ``args``: loaded from the
     program cache when a program of the same name, recipe and arguments was compiled before by the same
     source, libraries and settings; else lowered with :func:`lower_built_afresh`, compiled and saved.
+    Before :func:`enable_caches` (or with the caches turned off) it only lowers and compiles: JAX's
+    in-memory caches, which :func:`lower_built_afresh` clears for the whole process, stay as they are.
 
     Args:
         name: the file name's prefix (``iteration``, ``evaluation``...).
@@ -134,7 +136,9 @@ def compile_cached(
     import jax
 
     directory = cache_directory() if _programs_enabled else None
-    if directory is None or recipe is None or jax.process_count() > 1:
+    if directory is None:  # no cache to meet: JAX's in-memory caches are left as they are
+        return build().lower(*args).compile()
+    if recipe is None or jax.process_count() > 1:
         return lower_built_afresh(build, *args).compile()
     limit = program_cache_limit()
     path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"

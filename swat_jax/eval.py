@@ -26,9 +26,10 @@ from swat_jax.cli import run_command, strict_json
 from swat_jax.compilation_cache import compile_cached, enable_caches
 from swat_jax.morphology import MorphologyError, get_set
 from swat_jax.morphology.variants import Variation
+from swat_jax.runs import programs
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import Split, require_positive
-from swat_jax.runs.experiment import make_env, program_recipe
+from swat_jax.runs.experiment import make_env
 from swat_jax.runs.metrics import standard_error
 from swat_jax.runs.trained import TrainedPolicy, load_policy
 from swat_jax.td3.evaluation import make_evaluation
@@ -111,7 +112,7 @@ def evaluate(
         "evaluation",
         lambda: jax.jit(make_evaluation(env, tasks.structure, policy.actor, record=record)),
         (params, key),
-        program_recipe(policy.config, env, record),
+        programs.recipe(policy.config, env, record),
     )
     result = jax.device_get(evaluation(params, key))
     seeds = tuple(policy.seeds[index] for index in indices)

@@ -19,6 +19,7 @@ from test_env_bodies import FLOAT32_OBSERVATION_TOLERANCE, FLOAT32_STATE_TOLERAN
 
 from swat_jax.envs import BodyEnv, MultiTaskEnv
 from swat_jax.envs.physics import resolve_physics
+from swat_jax.runs import programs
 
 STEPS = 200
 
@@ -96,7 +97,7 @@ def test_multi_task_c_physics_runs_seeds_lock_step_and_resets():
     """Two bodies, 3 copies, 2 runs folded into one physics call, in lock-step rounds: a run on its own
     steps its physics exactly as beside another (its float32 observations to XLA's rounding of other
     batch shapes), and finished copies restart."""
-    env = MultiTaskEnv(["hopper_3", "walker_2_flipped"], 3, physics="c", runs=2, lock_step=True)
+    env = MultiTaskEnv(["hopper_3", "walker_2_flipped"], 3, physics="c", seeds=2, lock_step=True)
     keys = jax.random.split(jax.random.PRNGKey(1), 2)
     actions = jax.random.uniform(jax.random.PRNGKey(2), (40, 2, 2, 3, env.max_limbs), minval=-1, maxval=1)
 
@@ -118,7 +119,7 @@ def test_multi_task_c_physics_runs_seeds_lock_step_and_resets():
     np.testing.assert_array_equal(np.asarray(results.reward[:, 1]), np.asarray(alone_results.reward))
     np.testing.assert_allclose(np.asarray(both.observation[1]), np.asarray(alone.observation), atol=1e-6)
     assert np.asarray(results.terminated).any(), "no copy ended an episode in 40 steps"
-    assert env.definition() is None, "C physics programs call back into this process: not cacheable"
+    assert programs.environments(env) is None, "C physics programs call back into this process: not cacheable"
 
 
 def test_a_step_mujoco_rejects_names_the_body_and_the_fix(tmp_path):

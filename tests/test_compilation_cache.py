@@ -21,7 +21,7 @@ from conftest import MORPHOLOGIES, tiny_train_config
 from swat_jax import compilation_cache
 from swat_jax.compilation_cache import CacheSettingError, compile_cached
 from swat_jax.envs.multi_task import MultiTaskEnv
-from swat_jax.runs.experiment import program_recipe
+from swat_jax.runs.programs import recipe as program_recipe
 from swat_jax.td3.learner import TD3Config
 
 PROBE = """
@@ -168,12 +168,20 @@ def test_the_program_cache_is_off_with_the_compilation_cache(program_cache, monk
 
 
 def test_the_program_cache_keeps_nothing_before_enable_caches(program_cache, monkeypatch):
+    """Nor does it clear JAX's in-memory caches, which belong to the library user's whole process (with the
+    caches on, lowering as a fresh process would clears them)."""
     monkeypatch.setattr(compilation_cache, "_programs_enabled", False)
+    users = jax.jit(lambda x: x + 1)
+    users(jnp.ones(2))
     probe, x = Probe(), jnp.ones((2, 2))
     compile_cached("probe", probe.build, (x,), ("recipe",))
     compile_cached("probe", probe.build, (x,), ("recipe",))
     assert probe.traces == 2
     assert not program_cache.exists()
+    assert users._cache_size() == 1, "the user's compiled function was dropped"
+    monkeypatch.setattr(compilation_cache, "_programs_enabled", True)
+    compile_cached("probe", probe.build, (x,), ("recipe",))
+    assert users._cache_size() == 0
 
 
 def test_the_least_recently_used_programs_go_when_the_cache_is_full(program_cache, monkeypatch):

@@ -87,7 +87,7 @@ def test_a_body_of_another_tree_is_not_a_variant(tmp_path):
 def test_copies_of_a_body_run_its_variants_in_turn_and_keep_them_across_resets(tmp_path):
     """Copy j of every run runs variant j mod k, and still does after its episodes end and restart."""
     variants = write_variants("walker_2_main", 2, Variation(0.3), tmp_path)
-    env = MultiTaskEnv(["walker_2_main"], copies=3, variants=[variants], runs=2)
+    env = MultiTaskEnv(["walker_2_main"], copies=3, variants=[variants], seeds=2)
     table = env.envs[0].variant_table()
     state = env.reset(jax.random.split(jax.random.PRNGKey(0), 2))
     step = jax.jit(env.step)

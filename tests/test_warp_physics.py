@@ -43,7 +43,7 @@ def test_warp_environment_tracks_mujoco_c(name):
 
 def rollout(physics: str, seeds: int, copies: int):
     """Rewards, terminations and finished-episode counts [seeds, steps, K, n] of a random-action rollout."""
-    env = MultiTaskEnv(["hopper_3", "walker_2_main"], copies, physics=physics, runs=seeds)
+    env = MultiTaskEnv(["hopper_3", "walker_2_main"], copies, physics=physics, seeds=seeds)
 
     def run(key):
         def step(state, action_key):

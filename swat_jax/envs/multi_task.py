@@ -16,22 +16,20 @@ start as usual), and when the round ends every copy starts a new episode, cuttin
 A step *counts* (toward the step budget and the number of updates, as the original's step counter) while
 the copy's first episode of the round goes on after it: neither the step that ends it nor the steps after.
 
-Several independent runs (seeds) step together as a leading run axis [R] on every array of the state:
-each run splits its own keys, and the physics sees the runs' copies folded into one batch of R x n.
+Several independent runs (seeds) step together as a leading seed axis [S] on every array of the state:
+each seed splits its own keys, and the physics sees the seeds' copies folded into one batch of S x n.
 Folding, not an outer ``vmap``, is what keeps tracing cheap: ``vmap`` over a function that already vmaps
-MJX's loops batches every loop body once more (a second pass over the whole physics per run axis).
+MJX's loops batches every loop body once more (a second pass over the whole physics per seed axis).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from flax import struct
 
@@ -51,9 +49,9 @@ class EpisodeStats:
     count: jax.Array
 
     @classmethod
-    def zeros(cls, num_bodies: int, runs: tuple[int, ...] = ()) -> EpisodeStats:
-        """Zero sums [*runs, K]."""
-        shape = (*runs, num_bodies)
+    def zeros(cls, num_bodies: int, seeds: tuple[int, ...] = ()) -> EpisodeStats:
+        """Zero sums [*seeds, K]."""
+        shape = (*seeds, num_bodies)
         return cls(
             return_sum=jnp.zeros(shape, jnp.float32),
             length_sum=jnp.zeros(shape, jnp.float32),
@@ -63,8 +61,8 @@ class EpisodeStats:
 
 @struct.dataclass
 class MultiTaskState:
-    """All copies of all bodies; K bodies, n copies, L = max_limbs, F features. With runs, every array has
-    a leading run axis [R] before the shapes below."""
+    """All copies of all bodies; K bodies, n copies, L = max_limbs, F features. With seeds, every array has
+    a leading seed axis [S] before the shapes below."""
 
     bodies: tuple[EnvState, ...] = axes.field(copy=0)
     """K per-body states, each with a leading copy axis [n]."""
@@ -79,14 +77,14 @@ class MultiTaskState:
     False without)."""
 
     @property
-    def runs(self) -> tuple[int, ...]:
-        """The leading run axes: () for one run, (R,) for R runs stepped together."""
+    def seeds(self) -> tuple[int, ...]:
+        """The leading seed axes: () for a state without, (S,) for S seeds stepped together."""
         return self.observation.shape[:-4]
 
 
 @struct.dataclass
 class StepResult:
-    """What one step of every copy produced, for the replay buffer; [K, n] unless stated (after the run
+    """What one step of every copy produced, for the replay buffer; [K, n] unless stated (after the seed
     axes of the state, if any)."""
 
     next_observation: jax.Array
@@ -111,12 +109,12 @@ class MultiTaskEnv:
         max_limbs: L, the padded limb count; defaults to the largest body's.
         torso_relative_x, stale_kinematics: see :class:`~swat_jax.envs.body.BodyEnv`.
         physics: "jax", "warp", "c" or "auto" (:class:`~swat_jax.envs.body.BodyEnv`).
-        runs: how many instances of this environment one program steps (seeds: a leading run axis of the
-            state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * runs`` simulations
+        seeds: how many instances of this environment one program steps (a leading seed axis of the
+            state, or a ``vmap``); "warp" sizes its contact buffers for ``2 * copies * seeds`` simulations
             per call (a step derives the stepped and the fresh copies together).
-        lock_step: run in the original code's lock-step rounds (module docstring), each run on its own.
+        lock_step: run in the original code's lock-step rounds (module docstring), each seed on its own.
         variants: per body, its variants (:mod:`swat_jax.morphology.variants`; empty: the body itself):
-            copy j of a body runs its variant j mod (number of variants), in every run, through one
+            copy j of a body runs its variant j mod (number of variants), in every seed, through one
             program per body whatever their number (:class:`~swat_jax.envs.body.BodyEnv`).
 
     Raises:
@@ -133,7 +131,7 @@ class MultiTaskEnv:
         torso_relative_x: bool = True,
         stale_kinematics: bool = False,
         physics: Physics = "jax",
-        runs: int = 1,
+        seeds: int = 1,
         lock_step: bool = False,
         variants: Sequence[Sequence[Morphology | str]] = (),
     ):
@@ -153,7 +151,7 @@ class MultiTaskEnv:
                 torso_relative_x=torso_relative_x,
                 stale_kinematics=stale_kinematics,
                 physics=physics,
-                worlds=2 * copies * runs,
+                worlds=2 * copies * seeds,
                 variants=body_variants,
             )
             for body, body_variants in zip(morphologies, variants or [()] * len(morphologies), strict=True)
@@ -178,70 +176,52 @@ class MultiTaskEnv:
     def body_names(self) -> tuple[str, ...]:
         return tuple(env.morphology.name for env in self.envs)
 
-    def definition(self) -> tuple[Any, ...] | None:
-        """What a program of these environments is traced from besides its arguments, the key of
-        :func:`swat_jax.compilation_cache.compile_cached`: copies, padding, the observation's frame and,
-        per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary MJB: every size,
-        parameter and asset). None with Warp or C physics: their programs call kernels or callbacks that
-        this process registers and cannot be loaded by another."""
-        if any(env.simulator.implementation != "jax" for env in self.envs):
-            return None
-        return (
-            self.copies,
-            self.max_limbs,
-            self.lock_step,
-            *(
-                (env.morphology, env.torso_relative_x, env.stale_kinematics, _model_digest(env.mj_model))
-                for env in self.envs
-            ),
-        )
-
     def reset(self, rng: jax.Array) -> MultiTaskState:
-        """Start an episode in every copy of every body; a key array ``rng`` [*R] starts R runs, each from
+        """Start an episode in every copy of every body; a key array ``rng`` [*S] starts S seeds, each from
         its key."""
-        runs = rng.shape if jax.dtypes.issubdtype(rng.dtype, jax.dtypes.prng_key) else rng.shape[:-1]
-        rng, *keys = self._split(rng, runs)
+        seeds = rng.shape if jax.dtypes.issubdtype(rng.dtype, jax.dtypes.prng_key) else rng.shape[:-1]
+        rng, *keys = self._split(rng, seeds)
         bodies = tuple(
             _unfolded(
                 jax.vmap(env.reset)(
-                    _folded(self._copy_keys(key, runs), runs, self.copies), self._copy_variants(env, runs)
+                    _folded(self._copy_keys(key, seeds), seeds, self.copies), self._copy_variants(env, seeds)
                 ),
-                runs,
+                seeds,
                 self.copies,
             )
             for env, key in zip(self.envs, keys, strict=True)
         )
         return MultiTaskState(
             bodies=bodies,
-            observation=self._padded_observation(bodies, runs),
+            observation=self._padded_observation(bodies, seeds),
             rng=rng,
-            episodes=EpisodeStats.zeros(self.num_bodies, runs),
-            round_ended=jnp.zeros((*runs, self.num_bodies, self.copies), bool),
+            episodes=EpisodeStats.zeros(self.num_bodies, seeds),
+            round_ended=jnp.zeros((*seeds, self.num_bodies, self.copies), bool),
         )
 
-    def _copy_variants(self, env: BodyEnv, runs: tuple[int, ...]) -> Variant | None:
-        """[R x n, ...] the variant of every copy of every run (copy j: variant j mod k), or None."""
+    def _copy_variants(self, env: BodyEnv, seeds: tuple[int, ...]) -> Variant | None:
+        """[S x n, ...] the variant of every copy of every seed (copy j: variant j mod k), or None."""
         if not env.variants:
             return None
-        rows = np.arange(self.copies * math.prod(runs)) % self.copies % len(env.variants)
+        rows = np.arange(self.copies * math.prod(seeds)) % self.copies % len(env.variants)
         return jax.tree_util.tree_map(lambda table: table[rows], env.variant_table())
 
     def step(self, state: MultiTaskState, action: jax.Array) -> tuple[MultiTaskState, StepResult]:
-        """Apply ``action`` [*R, K, n, L] (padded limbs ignored) to every copy; reset finished copies (and,
+        """Apply ``action`` [*S, K, n, L] (padded limbs ignored) to every copy; reset finished copies (and,
         with lock-step rounds, every copy when the round ends)."""
-        runs = state.runs
-        rng, *keys = self._split(state.rng, runs)
+        seeds = state.seeds
+        rng, *keys = self._split(state.rng, seeds)
         both = [
             _step_and_restart(
                 env,
-                _folded(body_state, runs, self.copies),
-                _folded(action[..., k, :, : env.num_limbs], runs, self.copies),
-                _folded(self._copy_keys(key, runs), runs, self.copies),
+                _folded(body_state, seeds, self.copies),
+                _folded(action[..., k, :, : env.num_limbs], seeds, self.copies),
+                _folded(self._copy_keys(key, seeds), seeds, self.copies),
             )
             for k, (env, body_state, key) in enumerate(zip(self.envs, state.bodies, keys, strict=True))
         ]
-        stepped = [_unfolded(after_step, runs, self.copies) for after_step, _ in both]
-        axis = len(runs)
+        stepped = [_unfolded(after_step, seeds, self.copies) for after_step, _ in both]
+        axis = len(seeds)
         finished = jnp.stack([body.done for body in stepped], axis)
         if self.lock_step:
             restart, round_ended, counted = lock_step_round(state.round_ended, finished)
@@ -249,14 +229,14 @@ class MultiTaskEnv:
             restart, round_ended, counted = finished, state.round_ended, jnp.ones_like(finished)
         continued = tuple(
             _unfolded(
-                _where_done(_folded(restart[..., k, :], runs, self.copies), fresh, after_step),
-                runs,
+                _where_done(_folded(restart[..., k, :], seeds, self.copies), fresh, after_step),
+                seeds,
                 self.copies,
             )
             for k, (after_step, fresh) in enumerate(both)
         )
         result = StepResult(
-            next_observation=self._padded_observation(stepped, runs),
+            next_observation=self._padded_observation(stepped, seeds),
             reward=jnp.stack([body.reward for body in stepped], axis),
             terminated=jnp.stack([body.terminated for body in stepped], axis),
             truncated=jnp.stack([body.truncated for body in stepped], axis),
@@ -273,32 +253,32 @@ class MultiTaskEnv:
         )
         next_state = MultiTaskState(
             bodies=continued,
-            observation=self._padded_observation(continued, runs),
+            observation=self._padded_observation(continued, seeds),
             rng=rng,
             episodes=episodes,
             round_ended=round_ended,
         )
         return next_state, result
 
-    def _split(self, rng: jax.Array, runs: tuple[int, ...]) -> tuple[jax.Array, ...]:
-        """K + 1 keys [*R] from each run's key: the run's next key, then one per body."""
-        return _per_run(lambda key: tuple(jax.random.split(key, self.num_bodies + 1)), runs)(rng)
+    def _split(self, rng: jax.Array, seeds: tuple[int, ...]) -> tuple[jax.Array, ...]:
+        """K + 1 keys [*S] from each seed's key: the seed's next key, then one per body."""
+        return _per_seed(lambda key: tuple(jax.random.split(key, self.num_bodies + 1)), seeds)(rng)
 
-    def _copy_keys(self, keys: jax.Array, runs: tuple[int, ...]) -> jax.Array:
-        """[*R, n]: one key per copy from each run's body key [*R]."""
-        return _per_run(lambda key: jax.random.split(key, self.copies), runs)(keys)
+    def _copy_keys(self, keys: jax.Array, seeds: tuple[int, ...]) -> jax.Array:
+        """[*S, n]: one key per copy from each seed's body key [*S]."""
+        return _per_seed(lambda key: jax.random.split(key, self.copies), seeds)(keys)
 
-    def _padded_observation(self, bodies: Sequence[EnvState], runs: tuple[int, ...]) -> jax.Array:
-        """[*R, K, n, L, F] from K per-body observations [*R, n, limbs_k, F], zeros on padded limbs."""
+    def _padded_observation(self, bodies: Sequence[EnvState], seeds: tuple[int, ...]) -> jax.Array:
+        """[*S, K, n, L, F] from K per-body observations [*S, n, limbs_k, F], zeros on padded limbs."""
         return jnp.stack(
             [
                 jnp.pad(
                     body.observation,
-                    ((0, 0),) * (len(runs) + 1) + ((0, self.max_limbs - env.num_limbs), (0, 0)),
+                    ((0, 0),) * (len(seeds) + 1) + ((0, self.max_limbs - env.num_limbs), (0, 0)),
                 )
                 for env, body in zip(self.envs, bodies, strict=True)
             ],
-            len(runs),
+            len(seeds),
         )
 
 
@@ -306,12 +286,12 @@ def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> tuple[jax.Ar
     """One step of the original code's lock-step rounds (its training loop's ``done_list`` bookkeeping).
 
     Args:
-        round_ended: [*R, K, n] bool, copies whose first episode of the round ended before this step.
-        finished: [*R, K, n] bool, copies whose episode this step ended (terminated or truncated).
+        round_ended: [*S, K, n] bool, copies whose first episode of the round ended before this step.
+        finished: [*S, K, n] bool, copies whose episode this step ended (terminated or truncated).
 
     Returns:
-        ``(restart, round_ended, counted)``, each [*R, K, n] bool: the copies that start a new episode (the
-        finished ones, and every copy of a run whose round this step ended: all its copies have ended
+        ``(restart, round_ended, counted)``, each [*S, K, n] bool: the copies that start a new episode (the
+        finished ones, and every copy of a seed whose round this step ended: all its copies have ended
         their first episode), the copies whose first episode of the (next) round has ended, and the steps
         that count (the copy's first episode of the round goes on after this step).
     """
@@ -320,29 +300,29 @@ def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> tuple[jax.Ar
     return finished | round_over, ended & ~round_over, ~ended
 
 
-def _per_run(function: Callable, runs: tuple[int, ...]) -> Callable:
-    """``function`` mapped over the run axes (itself when there are none): for the runs' own keys."""
-    for _ in runs:
+def _per_seed(function: Callable, seeds: tuple[int, ...]) -> Callable:
+    """``function`` mapped over the seed axes (itself when there are none): for the seeds' own keys."""
+    for _ in seeds:
         function = jax.vmap(function)
     return function
 
 
-def _folded(tree: Any, runs: tuple[int, ...], copies: int) -> Any:
-    """Every array [*R, n, ...] as [R x n, ...]: the runs' copies as one batch of copies. Arrays without
+def _folded(tree: Any, seeds: tuple[int, ...], copies: int) -> Any:
+    """Every array [*S, n, ...] as [S x n, ...]: the seeds' copies as one batch of copies. Arrays without
     these axes (a Warp state's empty placeholders, :class:`~swat_jax.envs.physics.Simulator`) stay as
     they are."""
-    lead = (*runs, copies)
+    lead = (*seeds, copies)
     return jax.tree_util.tree_map(
         lambda x: x.reshape(math.prod(lead), *x.shape[len(lead) :]) if x.shape[: len(lead)] == lead else x,
         tree,
     )
 
 
-def _unfolded(tree: Any, runs: tuple[int, ...], copies: int) -> Any:
+def _unfolded(tree: Any, seeds: tuple[int, ...], copies: int) -> Any:
     """The inverse of :func:`_folded`."""
-    folded = math.prod(runs) * copies
+    folded = math.prod(seeds) * copies
     return jax.tree_util.tree_map(
-        lambda x: x.reshape(*runs, copies, *x.shape[1:]) if x.shape[:1] == (folded,) else x, tree
+        lambda x: x.reshape(*seeds, copies, *x.shape[1:]) if x.shape[:1] == (folded,) else x, tree
     )
 
 
@@ -392,10 +372,3 @@ def _where_done(done: jax.Array, fresh: EnvState, stepped: EnvState) -> EnvState
         return others.replace(data=stepped.data.where(done, fresh.data))
 
     return jax.vmap(select)(done, fresh, stepped)
-
-
-def _model_digest(mj_model: mujoco.MjModel) -> str:
-    """SHA-256 of ``mj_model`` saved as MuJoCo's binary MJB."""
-    buffer = np.zeros(mujoco.mj_sizeModel(mj_model), np.uint8)
-    mujoco.mj_saveModel(mj_model, None, buffer)
-    return hashlib.sha256(buffer).hexdigest()

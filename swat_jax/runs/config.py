@@ -60,47 +60,40 @@ def require_positive(flag: str, value: Any) -> None:
         raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")
 
 
-HOST_FIELDS = (
-    "env",
-    "split",
-    "bodies",
-    "init_from",
-    "init_seed_index",
-    "preset",
-    "seed",
-    "steps",
-    "log_interval",
-    "eval_interval",
-    "checkpoint_interval",
-    "keep_checkpoints",
-    "run_dir",
-)
-"""TrainConfig fields that no compiled program depends on (:meth:`TrainConfig.program_config`)."""
+HOST_ONLY = "host_only"
+"""The metadata key of the TrainConfig fields that only the host loop reads (:func:`host_only`)."""
+
+
+def host_only(default: Any) -> Any:
+    """A TrainConfig field that no compiled program depends on: where and how long the run goes, how often
+    it logs, evaluates and checkpoints, its first seed and transfer source, and how its bodies are named
+    (the programs see them as models); :func:`swat_jax.runs.programs.recipe` leaves it out."""
+    return dataclasses.field(default=default, metadata={HOST_ONLY: True})
 
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022)."""
 
-    env: str = "animal_walkers"
+    env: str = host_only("animal_walkers")
     """Environment set (hopper, walker, cheetah, humanoid, wh, whh, cwh, cwhh, animal_walkers) or a folder of MJCF files; trains on its train split."""
-    split: Split = "train"
+    split: Split = host_only("train")
     """Bodies of --env to train on: its train bodies, its held-out test bodies (fine-tuning on unseen bodies, paper section 5.3) or all."""
-    bodies: tuple[str, ...] = ()
+    bodies: tuple[str, ...] = host_only(())
     """Train on these bodies (benchmark names or MJCF paths) instead of a split of --env."""
-    init_from: str = ""
+    init_from: str = host_only("")
     """Start from the actor and critic (and their targets) of this run directory's newest checkpoint; optimizers and replay buffers start fresh (transfer, paper section 5.3)."""
-    init_seed_index: int = 0
+    init_seed_index: int = host_only(0)
     """With --init-from: which seed of that run (an index into its seeds) every seed of this run starts from."""
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
-    preset: Preset = "paper"
+    preset: Preset = host_only("paper")
     """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds and 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration, quirks fixed: chosen by time to return on a CPU, docs/training.md)."""
-    seed: int = 0
+    seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
     """Independent runs trained in one program, seeds seed .. seed+seeds-1 (a batch axis of the whole training state)."""
-    steps: int = 10_000_000
+    steps: int = host_only(10_000_000)
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
     copies: int = 1
     """Parallel environment copies per body."""
@@ -138,17 +131,17 @@ class TrainConfig:
     """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
     stale_kinematics: bool = True
     """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --physics jax); off: kinematics of the state after the step (the fast preset)."""
-    log_interval: int = 10_000
+    log_interval: int = host_only(10_000)
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
-    eval_interval: int = 0
+    eval_interval: int = host_only(0)
     """Environment steps (all bodies) between deterministic evaluations of the policy on the train bodies, logged as eval/* columns at the next metrics row; 0 turns them off."""
     eval_episodes: int = 10
     """Deterministic episodes per body in each evaluation during training (from the same initial states every time)."""
-    checkpoint_interval: int = 200_000
+    checkpoint_interval: int = host_only(200_000)
     """Environment steps (all bodies) between checkpoints; one is also written at the end and on Ctrl-C."""
-    keep_checkpoints: int = 2
+    keep_checkpoints: int = host_only(2)
     """Most recent checkpoints kept on disk."""
-    run_dir: str = ""
+    run_dir: str = host_only("")
     """Run directory; empty means runs/<env>-<algo>-seed<seed>."""
 
     def __post_init__(self) -> None:
@@ -258,13 +251,6 @@ class TrainConfig:
     def variant_draw(self) -> Variation:
         """How the run's variants are drawn (--variation, --variant-seed); ValueError for a bad spread."""
         return Variation(self.variation, self.variant_seed)
-
-    def program_config(self) -> TrainConfig:
-        """This config with the fields that only the host loop reads set to their defaults: where and how
-        long the run goes, how often it logs, evaluates and checkpoints, its first seed and transfer source,
-        and how its bodies are named (the programs see them as models). Two configs that trace the same
-        programs have the same ``program_config`` (:func:`swat_jax.runs.experiment.program_recipe`)."""
-        return dataclasses.replace(self, **{name: getattr(TrainConfig, name) for name in HOST_FIELDS})
 
     def training_bodies(self) -> tuple[str, ...]:
         """The bodies this run trains on: ``bodies`` if given, else ``split`` of ``env`` (names, or MJCF

@@ -25,6 +25,7 @@ from swat_jax.networks import (
     make_actor_critic,
     task_set,
 )
+from swat_jax.runs import programs
 from swat_jax.runs.checkpoint import CheckpointInfo, Checkpoints
 from swat_jax.runs.config import ConfigError, TrainConfig
 from swat_jax.runs.trained import check_transfer, network_items, restore_networks
@@ -177,12 +178,13 @@ class Experiment:
 
     @functools.cached_property
     def _evaluation_env(self) -> MultiTaskEnv:
-        """The train bodies with ``config.eval_episodes`` copies each, one run per seed."""
+        """The train bodies with ``config.eval_episodes`` copies each, for every seed."""
         return make_env(self.config, self.tasks.bodies, self.config.eval_episodes, self.config.seeds)
 
     def _recipe(self, env: MultiTaskEnv) -> tuple[Any, ...] | None:
-        """:func:`program_recipe` with the mesh the programs place their outputs on."""
-        return program_recipe(self.config, env, self.placement, self.placement.mesh.device_ids.tolist())
+        """The program cache's recipe of a program of this run on ``env`` (:mod:`swat_jax.runs.programs`),
+        with the mesh the programs place their outputs on."""
+        return programs.recipe(self.config, env, self.placement, self.placement.mesh.device_ids.tolist())
 
     def checkpoint_info(
         self, env_steps: int, iterations: int, seconds: float, **extra: Any
@@ -206,14 +208,14 @@ def make_env(
     config: TrainConfig,
     bodies: Sequence[Morphology],
     copies: int,
-    runs: int,
+    seeds: int,
     *,
     lock_step: bool = False,
     variants: int = 0,
     variation: Variation | None = None,
 ) -> MultiTaskEnv:
     """The environments of ``bodies`` as a run with ``config`` simulates them (its observation switches and
-    physics): ``copies`` per body, for ``runs`` seeds vmapped over them (the one place a config becomes a
+    physics): ``copies`` per body, for ``seeds`` seeds stepped together (the one place a config becomes a
     :class:`~swat_jax.envs.multi_task.MultiTaskEnv`). With ``variants`` K, copy j of each body runs variant
     j mod K drawn by ``variation`` (default: spread 0.2, seed 0): the variants are written to a temporary folder, compiled, and the
     folder removed (the draw is a function of the body, K, the spread and the seed)."""
@@ -221,7 +223,7 @@ def make_env(
         torso_relative_x=config.torso_relative_x,
         stale_kinematics=config.stale_kinematics,
         physics=resolve_physics(config.physics),
-        runs=runs,
+        seeds=seeds,
         lock_step=lock_step,
     )
     if not variants:
@@ -230,11 +232,3 @@ def make_env(
         variation = variation or Variation()
         drawn = [write_variants(body.path, variants, variation, Path(folder) / body.name) for body in bodies]
         return MultiTaskEnv(bodies, copies, variants=drawn, **settings)
-
-
-def program_recipe(config: TrainConfig, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:
-    """What a program of a run with ``config`` on ``env`` is traced from besides its arguments, for
-    :func:`swat_jax.compilation_cache.compile_cached`: the config's program fields, the environments'
-    definition and ``extra``; None where the environments' programs cannot be cached (Warp physics)."""
-    definition = env.definition()
-    return None if definition is None else (config.program_config(), definition, *extra)

@@ -67,7 +67,7 @@ def make_evaluation(
         def step(carry):
             t, states, finished, returns, lengths, tracks = carry
             actions = act(params, states.observation, structure)
-            next_states, result = env.step(states, actions)  # the seeds as runs of one state
+            next_states, result = env.step(states, actions)  # the seeds stepped as one state
             returns = returns + jnp.where(finished, 0.0, result.reward)
             lengths = lengths + (~finished).astype(jnp.int32)
             finished = finished | result.terminated | result.truncated
