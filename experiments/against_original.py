@@ -1,8 +1,8 @@
 """swat_jax's paper preset beside the original SWAT trainer: the same learning curves, and the wall clock of each.
 
-    python experiments/against_original.py [--sets hopper walker] [--scale small|paper] [--seeds 4]
+    python -m experiments.against_original [--sets hopper walker] [--scale small|paper] [--seeds 4]
         [--original-python /tmp/orig-venv/bin/python] [--original-tools DIR] [--parallel 2] [--dry-run]
-    python experiments/against_original.py --speed [--sets hopper walker animal_walkers] [--speed-seconds 120]
+    python -m experiments.against_original --speed [--sets hopper walker animal_walkers] [--speed-seconds 120]
 
 On one environment set, with the same network sizes, TD3 hyperparameters, random-start steps and step
 budget, the script trains
@@ -37,468 +37,50 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import hashlib
-import json
 import math
 import os
-import re
 import shlex
-import shutil
-import subprocess
 import sys
-import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from machine import cpu_model, host_cores, software_versions
-from paper import (
+
+from experiments.machine import cpu_model, host_cores, software_versions
+from experiments.original.curves import (
+    SeedCurves,
+    curve_points,
+    original_curves,
+    original_surplus,
+    original_throughput,
+    original_wall,
+    ours_curves,
+    ours_surplus,
+)
+from experiments.original.returns import SIGNIFICANCE, final_returns, time_to_reach, welch
+from experiments.original.runs import (
+    ORIGINAL,
+    ORIGINAL_SET_FLAGS,
+    OURS,
+    SETTINGS,
+    Original,
+    Settings,
+    original_runs,
+    ours,
+    train_original,
+)
+from experiments.original.speed import speed_table
+from experiments.paper import (
     GridError,
-    GridInterrupted,
-    RunSpec,
-    add_timing,
     exit_status,
     progress,
     read_timings,
     train_all,
 )
-from scipy import stats
-
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
-from swat_jax.plot import CurvePoint, curves_figure, save, summarise, write_points_csv
-from swat_jax.runs.metrics import read_metrics, standard_error
-
-ORIGINAL = "original (PyTorch)"
-OURS = "swat_jax (paper preset)"
-ORIGINAL_SET_FLAGS: dict[str, tuple[str, ...]] = {
-    **{name: ("--custom_xml", f"environments/{folder}") for folder, name in SET_FOLDERS.items()},
-    "animal_walkers": ("--morphologies", "nervenet"),
-}
-"""How the original's main.py is told each set's train bodies: its folder of XMLs, or (Animal-Walkers,
-which has no folder) the name its XML files share."""
-CHUNK = 100
-"""Steps per body of the paper preset's collection chunk (the original trains after each lock-step round)."""
-SURPLUS_ALLOWANCE: dict[str, float] = {"hopper": 1.75, "walker": 1.95}
-"""Environment steps swat_jax stores per step it counts, with room to spare, by set (else 2): its budget in
-stored steps is the counted budget times this, so that every seed counts the whole budget. In lock-step
-rounds both implementations store more steps than they count; the original's trainers stored 1.37-1.56x
-(Hopper++) and 1.59-1.76x (Walker++) at the small scale."""
-ORIGINAL_WORK = Path(os.environ.get("ORIG_SWAT_DIR", "/tmp/swat-original"))
-"""Where the original's tools copy its tree and where its main.py writes ``results/<expID>/``."""
-SIGNIFICANCE = 0.05
-
-
-@dataclasses.dataclass(frozen=True)
-class Settings:
-    """What both implementations train with: the same sizes, hyperparameters and budget."""
-
-    name: str
-    seeds: int
-    steps: Mapping[str, int]
-    """Environment steps per seed, summed over the set's bodies, by set."""
-    width: int = 128
-    heads: int = 2
-    layers: int = 3
-    feedforward: int = 256
-    random_steps: int = 10_000
-    """Steps per body with uniform random actions (the original's start_timesteps)."""
-    learning_rate: float = 1e-4
-    batch_size: int = 100
-    capacity: int = 500_000
-    """Replay rows per body (the original's rb_per_env)."""
-    log_iterations: int = 5
-    """Chunks of 100 steps per body between two points of the curves."""
-    final_fraction: float = 0.2
-    """The final return of a seed is its mean over the points in this last fraction of the budget."""
-
-    def log_interval(self, environment_set: str) -> int:
-        """Environment steps (all bodies) between two points of ``environment_set``'s curves."""
-        return len(get_set(environment_set).train) * CHUNK * self.log_iterations
-
-    def stored_budget(self, environment_set: str) -> int:
-        """swat_jax's ``--steps`` on ``environment_set``: the counted budget times its surplus allowance,
-        rounded up to whole collection chunks of every body."""
-        chunk = len(get_set(environment_set).train) * CHUNK
-        allowance = SURPLUS_ALLOWANCE.get(environment_set, 2.0)
-        return math.ceil(self.budget(environment_set) * allowance / chunk) * chunk
-
-    def budget(self, environment_set: str) -> int:
-        """The step budget on ``environment_set`` in the steps the original counts (the curves' x axis);
-        GridError if it has none or it is off the curves' grid."""
-        if environment_set not in self.steps:
-            raise GridError(f"scale {self.name} has no budget for {environment_set}; give --steps")
-        steps, interval = self.steps[environment_set], self.log_interval(environment_set)
-        if steps % interval:
-            raise GridError(
-                f"--steps {steps} on {environment_set}: must be a multiple of {interval} (its "
-                f"{len(get_set(environment_set).train)} bodies x {CHUNK} steps x {self.log_iterations} chunks "
-                "between curve points)"
-            )
-        return steps
-
-
-SCALES = {
-    "micro": Settings(
-        name="micro",
-        seeds=2,
-        steps={"hopper": 600, "walker": 800},
-        width=8,
-        layers=1,
-        feedforward=16,
-        random_steps=100,
-        capacity=1_000,
-        log_iterations=1,
-    ),
-    "small": Settings(
-        name="small",
-        seeds=4,
-        steps={"hopper": 24_000, "walker": 30_000},
-        width=32,
-        layers=1,
-        feedforward=64,
-        random_steps=1_000,
-        learning_rate=1e-3,
-        capacity=50_000,
-    ),
-    "paper": Settings(
-        name="paper",
-        seeds=5,
-        steps={name: 10_000_000 for name in ORIGINAL_SET_FLAGS},
-        log_iterations=100,
-    ),
-}
-"""``micro`` is a smoke test of the whole pipeline (a few minutes); ``small`` fits Hopper++ and Walker++, both implementations, into about 80 minutes of 2 CPU cores;
-``paper`` is the paper's sizes and budget (days of the original on a CPU)."""
-
-
-# The two sides' runs
-
-
-def ours(out: Path, settings: Settings, environment_set: str) -> RunSpec:
-    """swat_jax's paper-preset run of every seed in one program: lock-step rounds, so it stores more steps
-    than it counts; it runs for :meth:`Settings.stored_budget` steps and logs a row (with the steps
-    counted so far) after every chunk, for the curves to be binned by counted steps."""
-    chunk = len(get_set(environment_set).train) * CHUNK
-    flags = (
-        f"--env {environment_set} --algo swat --preset paper --seeds {settings.seeds} "
-        f"--steps {settings.stored_budget(environment_set)} --width {settings.width} --heads {settings.heads} "
-        f"--layers {settings.layers} --feedforward {settings.feedforward} "
-        f"--iteration.random-steps {settings.random_steps} --iteration.capacity {settings.capacity} "
-        f"--td3.learning-rate {settings.learning_rate} --td3.batch-size {settings.batch_size} "
-        f"--log-interval {chunk} --checkpoint-interval {settings.log_interval(environment_set) * 4}"
-    )
-    return RunSpec(out / "runs" / f"{environment_set}-swat_jax", tuple(flags.split()))
-
-
-@dataclasses.dataclass(frozen=True)
-class OriginalRun:
-    """One seed of the original trainer on one set."""
-
-    out: Path
-    settings: Settings
-    environment_set: str
-    seed: int
-
-    @property
-    def name(self) -> str:
-        return f"{self.environment_set}-seed{self.seed}"
-
-    @property
-    def folder(self) -> Path:
-        """Where its stat.json, args.txt and log are kept in OUT."""
-        return self.out / "original" / self.name
-
-    @property
-    def experiment_id(self) -> str:
-        """The original's --expID: unique per OUT folder, so two comparisons never share a results folder."""
-        digest = hashlib.sha1(str(self.out.resolve()).encode()).hexdigest()[:8]
-        return f"swat_jax_against_{digest}_{self.name}"
-
-    def flags(self) -> list[str]:
-        """The original main.py's flags for these settings."""
-        s = self.settings
-        if self.environment_set not in ORIGINAL_SET_FLAGS:
-            raise GridError(
-                f"the original code has no folder for {self.environment_set}; sets it can train: "
-                f"{', '.join(ORIGINAL_SET_FLAGS)}"
-            )
-        return [
-            *ORIGINAL_SET_FLAGS[self.environment_set],
-            "--actor_type", "swat", "--critic_type", "swat", "--seed", str(self.seed),
-            "--expID", self.experiment_id, "--max_timesteps", str(s.budget(self.environment_set)),
-            "--start_timesteps", str(s.random_steps), "--lr", str(s.learning_rate),
-            "--batch_size", str(s.batch_size), "--rb_per_env", str(s.capacity),
-            "--attention_embedding_size", str(s.width), "--attention_heads", str(s.heads),
-            "--attention_layers", str(s.layers), "--attention_hidden_size", str(s.feedforward),
-        ]  # fmt: skip
-
-    def command(self, python: Path, tools: Path, timeout: float) -> list[str]:
-        return [str(python), str(tools / "run_trainer.py"), str(timeout), *self.flags()]
-
-    def finished(self) -> bool:
-        return (self.folder / "stat.json").is_file()
-
-
-def original_runs(out: Path, settings: Settings, environment_set: str) -> list[OriginalRun]:
-    return [OriginalRun(out, settings, environment_set, seed) for seed in range(settings.seeds)]
-
-
-@dataclasses.dataclass(frozen=True)
-class Original:
-    """Where the original trainer runs: its venv's python and the folder of its tools."""
-
-    python: Path
-    tools: Path
-    parallel: int
-    timeout: float
-
-    def missing(self) -> str | None:
-        """Why it cannot run here, or None."""
-        if not self.python.is_file():
-            return f"no original-code venv at {self.python} (give --original-python)"
-        if self.tools == Path():
-            return "no folder of the original's tools: give --original-tools DIR or set $ORIGINAL_TOOLS"
-        if not (self.tools / "run_trainer.py").is_file():
-            return f"no run_trainer.py in {self.tools} (give --original-tools)"
-        return None
-
-
-def train_original(runs: Sequence[OriginalRun], original: Original, out: Path) -> None:
-    """Run every unfinished seed, ``original.parallel`` at a time, each with one torch thread; copy its
-    stat.json, args.txt and log into OUT; add the wall clock to ``timings.json``."""
-    pending = [run for run in runs if not run.finished()]
-    for run in runs:
-        if run.finished():
-            print(f"original {run.name}: done, kept", file=sys.stderr)
-    if not pending:
-        return
-    prepare_tree(original)
-    start, running = time.perf_counter(), []
-    try:
-        while pending or running:
-            while pending and len(running) < original.parallel:
-                run = pending.pop(0)
-                running.append((run, _start_original(run, original), time.perf_counter()))
-            time.sleep(1.0)
-            for entry in list(running):
-                run, process, began = entry
-                if process.poll() is None:
-                    continue
-                running.remove(entry)
-                _collect_original(run, process.returncode, time.perf_counter() - began)
-    except KeyboardInterrupt:
-        for _, process, _ in running:
-            process.terminate()
-        raise GridInterrupted(
-            "stopped; the finished seeds are kept, run the same command again to go on"
-        ) from None
-    finally:
-        add_timing(out, f"original-{runs[0].environment_set}", time.perf_counter() - start)
-
-
-def prepare_tree(original: Original) -> None:
-    """Have the original's tools copy its tree into ORIGINAL_WORK once, before seeds start side by side (each
-    would copy it otherwise, and a seed started during another's copy finds it half-written)."""
-    setup = f"import sys; sys.path.insert(0, {str(original.tools)!r}); import common; common.extract()"
-    environment = {**os.environ, "ORIG_SWAT_DIR": str(ORIGINAL_WORK)}
-    subprocess.run([str(original.python), "-c", setup], env=environment, cwd="/tmp", check=True)
-
-
-def _start_original(run: OriginalRun, original: Original) -> subprocess.Popen:
-    for stale in (ORIGINAL_WORK / "src" / "results", ORIGINAL_WORK / "src" / "buffers"):
-        shutil.rmtree(stale / run.experiment_id, ignore_errors=True)
-    run.folder.mkdir(parents=True, exist_ok=True)
-    command = run.command(original.python, original.tools, original.timeout)
-    print(f"original {run.name}: {shlex.join(command)}", file=sys.stderr)
-    environment = {**os.environ, "OMP_NUM_THREADS": "1", "ORIG_SWAT_DIR": str(ORIGINAL_WORK)}
-    log = (run.folder / "trainer.log").open("w")
-    return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=environment, cwd="/tmp")
-
-
-def _collect_original(run: OriginalRun, status: int, seconds: float) -> None:
-    results = ORIGINAL_WORK / "src" / "results" / run.experiment_id
-    if status != 0 or not (results / "stat.json").is_file():
-        raise GridError(
-            f"original {run.name} exited with status {status}; its log: {run.folder / 'trainer.log'}"
-        )
-    if "training finished" not in _log(run):
-        raise GridError(
-            f"original {run.name} stopped before its budget (after {seconds:.0f} s); raise --original-timeout "
-            f"(its log: {run.folder / 'trainer.log'})"
-        )
-    shutil.copy(results / "args.txt", run.folder / "args.txt")
-    shutil.copy(results / "stat.json", run.folder / "stat.json")
-    print(f"original {run.name}: finished in {seconds / 60:.1f} min", file=sys.stderr)
-
-
-# Curves on one grid
-
-
-@dataclasses.dataclass(frozen=True)
-class SeedCurves:
-    """One seed's binned training returns: by body, {grid step: mean return}, and the wall clock (s from
-    the start of the seed's run) at each grid step."""
-
-    returns: dict[str, dict[int, float]]
-    seconds: dict[int, float]
-
-    def mean_over_bodies(self) -> dict[int, float]:
-        steps = sorted({step for curve in self.returns.values() for step in curve})
-        means = {
-            step: float(np.nanmean([curve.get(step, math.nan) for curve in self.returns.values()]))
-            for step in steps
-        }
-        return {step: value for step, value in means.items() if math.isfinite(value)}
-
-
-def grid_step(steps: float, interval: int, budget: int) -> int:
-    """The curve point a step count falls into: the end of its interval (capped at the budget)."""
-    return min(max(1, math.ceil(steps / interval)) * interval, budget)
-
-
-def original_curves(run: OriginalRun) -> SeedCurves:
-    """The original seed's stat.json rows binned on the grid, with the trainer log's wall clock of each
-    round (its log line k is written by the same training round as stat.json's row k)."""
-    stat = json.loads((run.folder / "stat.json").read_text())
-    interval, budget = (
-        run.settings.log_interval(run.environment_set),
-        run.settings.budget(run.environment_set),
-    )
-    bins = [grid_step(step, interval, budget) for step in stat["timestep"]]
-    returns = {}
-    for body in get_set(run.environment_set).train:
-        values: dict[int, list[float]] = {}
-        for step, value in zip(bins, stat[f"{body}_episode_reward"], strict=True):
-            values.setdefault(step, []).append(value)
-        returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
-    rounds = [float(t) for t in re.findall(r"\[harness\] t=\s*([\d.]+)s round=", _log(run))]
-    seconds = dict(zip(bins, rounds, strict=False))
-    return SeedCurves(returns, seconds)
-
-
-def _log(run: OriginalRun) -> str:
-    return (run.folder / "trainer.log").read_text()
-
-
-def original_surplus(run: OriginalRun) -> float | None:
-    """Environment steps the seed's trainer took (every body, every step of each lock-step round) per step
-    it counted toward its budget (one update each): above 1 by the transitions it stores uncounted."""
-    match = re.search(r"totals: env_steps=(\d+) .*?updates=(\d+)", _log(run))
-    return int(match.group(1)) / int(match.group(2)) if match and int(match.group(2)) else None
-
-
-def original_wall(run: OriginalRun) -> float | None:
-    """Seconds the seed's trainer ran, as its log reports them."""
-    match = re.search(r"stopped after ([\d.]+)s wall", _log(run))
-    return float(match.group(1)) if match else None
-
-
-def original_throughput(run: OriginalRun) -> tuple[float, float] | None:
-    """Environment steps/s and updates/s of the seed's training window, as its trainer log reports them."""
-    match = re.search(r"([\d.]+) env steps/s, ([\d.]+) updates/s overall", _log(run))
-    return (float(match.group(1)), float(match.group(2))) if match else None
-
-
-def ours_curves(
-    rows: Sequence[Mapping[str, float]], settings: Settings, environment_set: str, wall: float | None
-) -> list[SeedCurves]:
-    """Each seed's metrics rows binned on the grid by the steps counted so far (as the original's rounds
-    are), rows past the counted budget left out; wall clock from the rows' steps/s, the compile and
-    start-up time (the run's wall clock less its training windows) added, at each bin's last row."""
-    interval, budget = settings.log_interval(environment_set), settings.budget(environment_set)
-    curves = []
-    for seed in dict.fromkeys(int(row["seed"]) for row in rows):
-        mine = [row for row in rows if int(row["seed"]) == seed]
-        stored = np.diff([0.0] + [row["env_steps"] for row in mine])
-        windows = np.cumsum(
-            [steps / row["steps_per_second"] for steps, row in zip(stored, mine, strict=True)]
-        )
-        startup = (wall - windows[-1]) if wall is not None else 0.0
-        kept = [(row, t) for row, t in zip(mine, windows, strict=True) if row["counted_steps"] <= budget]
-        bins = [grid_step(row["counted_steps"], interval, budget) for row, _ in kept]
-        returns = {}
-        for body in get_set(environment_set).train:
-            values: dict[int, list[float]] = {}
-            for step, (row, _) in zip(bins, kept, strict=True):
-                if math.isfinite(row[f"return/{body}"]):
-                    values.setdefault(step, []).append(row[f"return/{body}"])
-            returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
-        seconds = {step: startup + float(t) for step, (_, t) in zip(bins, kept, strict=True)}
-        curves.append(SeedCurves(returns, seconds))
-    return curves
-
-
-def ours_surplus(rows: Sequence[Mapping[str, float]]) -> list[float]:
-    """Per seed, the environment steps swat_jax stored per step it counted, at its last row."""
-    last = {int(row["seed"]): row for row in rows}
-    return [row["env_steps"] / max(row["counted_steps"], 1) for row in last.values()]
-
-
-def curve_points(environment_set: str, sides: Mapping[str, Sequence[SeedCurves]]) -> list[CurvePoint]:
-    """The plotted points: a panel for the mean over bodies and one per body, a line per implementation."""
-    label = get_set(environment_set).description or environment_set
-    points = []
-    for implementation, curves in sides.items():
-        points += summarise(
-            f"{label}: mean over bodies", implementation, [c.mean_over_bodies() for c in curves]
-        )
-    for body in get_set(environment_set).train:
-        for implementation, curves in sides.items():
-            points += summarise(f"{label}: {body}", implementation, [c.returns[body] for c in curves])
-    return points
-
-
-# Statistics
-
-
-@dataclasses.dataclass(frozen=True)
-class Final:
-    """Each seed's final return (mean over bodies, averaged over the last points of the budget)."""
-
-    values: np.ndarray
-
-    @property
-    def mean(self) -> float:
-        return float(np.mean(self.values))
-
-    @property
-    def standard_error(self) -> float:
-        return standard_error(self.values)
-
-
-def final_returns(
-    curves: Sequence[SeedCurves], settings: Settings, environment_set: str, body: str | None = None
-) -> Final:
-    """Each seed's mean over the points of the budget's last ``final_fraction`` (points past the budget left
-    out): of the mean over bodies, or of ``body``'s curve."""
-    budget = settings.budget(environment_set)
-    start = budget * (1 - settings.final_fraction)
-    values = []
-    for curve in curves:
-        line = curve.mean_over_bodies() if body is None else curve.returns[body]
-        tail = [value for step, value in line.items() if start < step <= budget]
-        values.append(float(np.mean(tail)) if tail else math.nan)
-    return Final(np.array(values))
-
-
-def welch(a: Final, b: Final) -> float:
-    """Two-sided p-value of Welch's t-test (unequal variances) that the two seed samples share a mean."""
-    if len(a.values) < 2 or len(b.values) < 2:
-        return math.nan
-    return float(stats.ttest_ind(a.values, b.values, equal_var=False).pvalue)
-
-
-def time_to_reach(curves: Sequence[SeedCurves], target: float) -> float | None:
-    """Seconds (mean over seeds) until the mean-over-seeds curve first reaches ``target``; None if never."""
-    means = [c.mean_over_bodies() for c in curves]
-    for step in sorted({step for m in means for step in m}):
-        values = [m[step] for m in means if step in m]
-        if np.mean(values) >= target:
-            return float(np.mean([c.seconds[step] for c in curves if step in c.seconds]))
-    return None
-
+from swat_jax.plot import curves_figure, save, write_points_csv
+from swat_jax.runs.metrics import read_metrics
 
 # The report
 
@@ -625,7 +207,7 @@ def report(
     lines = [
         f"# swat_jax beside the original SWAT trainer, scale {s.name}",
         "",
-        f"- Command: `python experiments/against_original.py {shlex.join(argv)}`",
+        f"- Command: `python -m experiments.against_original {shlex.join(argv)}`",
         f"- Date: {datetime.date.today().isoformat()}",
         f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
         f"- Both: SWAT actor and critic of width {s.width}, {s.heads} heads, {s.layers} layers, feed-forward "
@@ -644,105 +226,12 @@ def report(
     return path
 
 
-# Throughput at the paper's sizes (--speed)
-
-
-@dataclasses.dataclass(frozen=True)
-class Speed:
-    """One throughput measurement: environment steps counted toward the budget, Adam steps of the critic, and
-    the transitions those sampled, per second of steady state."""
-
-    label: str
-    env_steps: float
-    updates: float
-    transitions: float
-    startup: float
-    """Seconds before the timed window: process start and the first round (original) or the compile."""
-
-
-def original_speed(original: Original, environment_set: str, threads: int | None, seconds: float) -> Speed:
-    """The original trainer at its default (the paper's) sizes for ``seconds``, acting from its first step.
-
-    Its training window (rounds 2 to the last, as run_trainer.py reports it) gives the rates. Each counted
-    environment step (its total_timesteps, the budget's steps) is one update of the paper's schedule, so the
-    counted steps/s are its updates/s; the steps its vectorised env takes for bodies already done in a round
-    are not counted.
-    """
-    experiment_id = f"swat_jax_speed_{environment_set}"
-    label = f"original, {threads or host_cores()} torch thread{'s' if (threads or host_cores()) > 1 else ''}"
-    flags = [*ORIGINAL_SET_FLAGS[environment_set], "--actor_type", "swat", "--critic_type", "swat"]
-    flags += ["--seed", "0", "--start_timesteps", "100", "--expID", experiment_id]
-    shutil.rmtree(ORIGINAL_WORK / "src" / "results" / experiment_id, ignore_errors=True)
-    environment = {**os.environ, "ORIG_SWAT_DIR": str(ORIGINAL_WORK)}
-    environment.pop("OMP_NUM_THREADS", None)
-    if threads:
-        environment["OMP_NUM_THREADS"] = str(threads)
-    command = [str(original.python), str(original.tools / "run_trainer.py"), str(seconds), *flags]
-    print(f"{label}: {shlex.join(command)}", file=sys.stderr)
-    log = subprocess.run(
-        command, env=environment, cwd="/tmp", stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    ).stdout
-    window = re.search(r"training window ([\d.]+)s .*?([\d.]+) updates/s overall", log)
-    if not window:
-        raise GridError(
-            f"{label}: no training window in its log (fewer than two rounds in {seconds} s?):\n{log[-2000:]}"
-        )
-    updates = float(window.group(2))
-    return Speed(
-        label, updates, updates, updates * SCALES["paper"].batch_size, seconds - float(window.group(1))
-    )
-
-
-def ours_speed(preset: str, environment_set: str, iterations: int) -> Speed:
-    """swat_jax's ``preset`` at the paper's network sizes on ``environment_set``, acting from its first step."""
-    from preset_benchmark import measure
-
-    from swat_jax.runs.config import PRESETS
-
-    base = PRESETS[preset]
-    config = dataclasses.replace(
-        base,
-        env=environment_set,
-        iteration=dataclasses.replace(base.iteration, random_steps=0, capacity=100_000),
-    )
-    measured = measure(f"swat_jax {preset} preset", config, iterations)
-    return Speed(
-        measured.label,
-        measured.env_steps_per_second,
-        measured.updates_per_second,
-        measured.transitions_per_second,
-        measured.compile_seconds,
-    )
-
-
-def speed_table(sets: Sequence[str], original: Original, seconds: float, iterations: int) -> str:
-    """Every set's measurements as Markdown, with ratios to the original on one torch thread."""
-    lines = [
-        "| set | implementation | env steps/s | updates/s | update transitions/s | start-up (s) "
-        "| env steps/s vs original (1 thread) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for environment_set in sets:
-        measured = [original_speed(original, environment_set, 1, seconds)]
-        if host_cores() > 1:
-            measured.append(original_speed(original, environment_set, None, seconds))
-        measured += [ours_speed(preset, environment_set, iterations) for preset in ("paper", "fast")]
-        baseline = measured[0].env_steps
-        for m in measured:
-            lines.append(
-                f"| {get_set(environment_set).description} | {m.label} | {m.env_steps:,.1f} | {m.updates:,.1f} "
-                f"| {m.transitions:,.0f} | {m.startup:.0f} | {m.env_steps / baseline:.2f} |"
-            )
-            print(lines[-1], file=sys.stderr, flush=True)
-    return "\n".join(lines)
-
-
 # The command
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python experiments/against_original.py",
+        prog="python -m experiments.against_original",
         description=__doc__.split("\n\n")[0],
         epilog="A partial run resumes: the same command goes on where it stopped.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -753,7 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
         f"the original can train {', '.join(ORIGINAL_SET_FLAGS)}",
     )  # fmt: skip
     parser.add_argument(
-        "--scale", choices=tuple(SCALES), default="small",
+        "--scale", choices=tuple(SETTINGS), default="small",
         help="micro (a smoke test: 2 seeds, 600/800 steps), small (default: width-32 one-layer SWAT, 4 seeds, 24K/30K steps; about 80 min for Hopper++ "
         "and Walker++ on 2 CPU cores) or paper (the paper's sizes, 5 seeds, 10M steps)",
     )  # fmt: skip
@@ -805,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def settings_from(args: argparse.Namespace) -> Settings:
-    settings = SCALES[args.scale]
+    settings = SETTINGS[args.scale]
     if args.seeds is not None:
         settings = dataclasses.replace(settings, seeds=args.seeds)
     if args.steps is not None:

@@ -1,6 +1,6 @@
 """The paper's experiments as one command each: train the grid, then draw the figure or write the table.
 
-    python experiments/paper.py figure4|figure5|figure6|tables --scale tiny|paper [--sets SET ...]
+    python -m experiments.paper figure4|figure5|figure6|tables --scale tiny|paper [--sets SET ...]
 
   figure4  multi-task learning (section 5.2): SWAT, AMORPHEUS and SMP on every set
   figure5  transfer (section 5.3): SWAT, AMORPHEUS and SMP pretrained on a set's train bodies, then
@@ -36,8 +36,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from machine import cpu_model, host_cores, software_versions
-
+from experiments.machine import cpu_model, host_cores, software_versions
 from swat_jax.cli import strict_json
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
@@ -385,7 +384,7 @@ def report(
     lines = [
         f"# {command}, scale {scale.name}",
         "",
-        f"- Command: `python experiments/paper.py {shlex.join(argv)}`",
+        f"- Command: `python -m experiments.paper {shlex.join(argv)}`",
         f"- Date: {datetime.date.today().isoformat()}",
         f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
         f"- Every run: {scale.seeds} seeds in one program; `{scale.flags}`"
@@ -405,7 +404,7 @@ def report(
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python experiments/paper.py",
+        prog="python -m experiments.paper",
         description=__doc__.split("\n\n")[0],
         epilog="Runs are kept and resumed: after a Ctrl-C, the same command continues where it stopped.",
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -1,7 +1,7 @@
 """Time to a trained policy: machine seconds per seed for swat_jax's configurations to reach the original
 SWAT trainer's final return, beside the original's own.
 
-    python experiments/time_to_return.py [--sets hopper walker] [--scale small] [--candidates paper fast]
+    python -m experiments.time_to_return [--sets hopper walker] [--scale small] [--candidates paper fast]
         [--seeds 4] [--window 3] [--horizon 1.5] [--original-from experiments/results/against_original]
         [--out DIR] [--dry-run]
 
@@ -53,21 +53,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from against_original import (
-    SCALES,
-    Final,
-    SeedCurves,
-    Settings,
-    final_returns,
-    original_curves,
-    original_runs,
-    ours,
-    ours_curves,
-    welch,
-)
-from machine import cpu_model, host_cores, software_versions
-from paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
 
+from experiments.machine import cpu_model, host_cores, software_versions
+from experiments.original.curves import SeedCurves, original_curves, ours_curves
+from experiments.original.returns import Final, final_returns, welch
+from experiments.original.runs import SETTINGS, Settings, original_runs, ours
+from experiments.paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
 from swat_jax.plot import new_figure, save
@@ -340,7 +331,7 @@ def report(
     lines = [
         f"# Time to the original's final return, scale {s.name}",
         "",
-        f"- Command: `python experiments/time_to_return.py {shlex.join(argv)}`",
+        f"- Command: `python -m experiments.time_to_return {shlex.join(argv)}`",
         f"- Date: {datetime.date.today().isoformat()}",
         f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
         f"- Every run: SWAT of width {s.width}, {s.heads} heads, {s.layers} layers, feed-forward {s.feedforward}; "
@@ -367,7 +358,7 @@ def report(
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python experiments/time_to_return.py",
+        prog="python -m experiments.time_to_return",
         description=__doc__.split("\n\n")[0],
         epilog="A partial run resumes: the same command goes on where it stopped.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -380,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="environment sets (default hopper walker)",
     )
     parser.add_argument(
-        "--scale", choices=tuple(SCALES), default="small",
+        "--scale", choices=tuple(SETTINGS), default="small",
         help="against_original.py's scale: the sizes, hyperparameters and budget of the original's runs (default small)",
     )  # fmt: skip
     parser.add_argument(
@@ -421,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def work() -> Path | None:
-        settings = SCALES[args.scale]
+        settings = SETTINGS[args.scale]
         if args.seeds is not None:
             if args.seeds < 1:
                 raise GridError(f"--seeds must be 1 or more, got {args.seeds}")

@@ -6,20 +6,18 @@ import csv
 import json
 import math
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from experiments import against_original as against
+from experiments.original import curves, returns, runs
+from swat_jax.morphology import get_set
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "experiments"))
 
-import against_original as against  # noqa: E402
-
-from swat_jax.morphology import get_set  # noqa: E402
-
-MICRO = against.SCALES["micro"]
+MICRO = runs.SETTINGS["micro"]
 ORIGINAL_PYTHON = Path(os.environ.get("ORIGINAL_PYTHON", "/tmp/orig-venv/bin/python"))
 ORIGINAL_TOOLS = Path(os.environ.get("ORIGINAL_TOOLS", REPO.parent / "shared" / "tools" / "original"))
 
@@ -31,8 +29,8 @@ def flag_values(flags) -> dict[str, str]:
 
 @pytest.mark.parametrize("environment_set", ["hopper", "walker"])
 def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_path, environment_set):
-    ours = flag_values(against.ours(tmp_path, MICRO, environment_set).flags)
-    for seed, run in enumerate(against.original_runs(tmp_path, MICRO, environment_set)):
+    ours = flag_values(runs.ours(tmp_path, MICRO, environment_set).flags)
+    for seed, run in enumerate(runs.original_runs(tmp_path, MICRO, environment_set)):
         theirs = flag_values(run.flags())
         assert theirs["--seed"] == str(seed)
         same = {
@@ -58,7 +56,7 @@ def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_pat
     assert stored == MICRO.stored_budget(environment_set) >= 1.75 * MICRO.budget(environment_set), (
         "swat_jax's budget stores enough steps for every seed to count the original's budget"
     )
-    assert stored % (bodies * against.CHUNK) == 0 and int(ours["--log-interval"]) == bodies * against.CHUNK, (
+    assert stored % (bodies * runs.CHUNK) == 0 and int(ours["--log-interval"]) == bodies * runs.CHUNK, (
         "a row per chunk, for the curves to be binned by counted steps"
     )
 
@@ -79,7 +77,7 @@ def test_dry_run_prints_every_seed_of_the_original_and_one_swat_jax_program(tmp_
     assert "swat_jax.train" in lines[-1] and lines[-1].endswith("# new")
 
 
-def write_original_seed(run: against.OriginalRun, timesteps, rewards_by_body, round_seconds) -> None:
+def write_original_seed(run: runs.OriginalRun, timesteps, rewards_by_body, round_seconds) -> None:
     """A finished original seed's files as train_original leaves them."""
     run.folder.mkdir(parents=True)
     stat = {"timestep": timesteps, "episode_return": [0.0] * len(timesteps)}
@@ -96,7 +94,7 @@ def write_original_seed(run: against.OriginalRun, timesteps, rewards_by_body, ro
 
 
 def test_original_rounds_are_binned_on_the_curve_grid_with_their_wall_clock(tmp_path):
-    run = against.original_runs(tmp_path, MICRO, "hopper")[0]
+    run = runs.original_runs(tmp_path, MICRO, "hopper")[0]
     bodies = ("hopper_3", "hopper_4", "hopper_5")
     write_original_seed(
         run,
@@ -108,31 +106,31 @@ def test_original_rounds_are_binned_on_the_curve_grid_with_their_wall_clock(tmp_
         },
         [1.0, 2.0, 3.5, 5.0],
     )
-    curves = against.original_curves(run)
-    assert set(curves.returns) == set(bodies)
+    seed = curves.original_curves(run)
+    assert set(seed.returns) == set(bodies)
     # Grid of 300 steps, budget 600: rounds at 120 and 290 fall into 300; 450 and 610 (past the budget) into 600.
-    assert curves.returns["hopper_3"] == {300: 2.0, 600: 15.0}
-    assert curves.mean_over_bodies() == {300: pytest.approx(5.0 / 3), 600: pytest.approx(22.0 / 3)}
-    assert curves.seconds == {300: 2.0, 600: 5.0}, "a point's time is that of its last round"
-    assert against.original_throughput(run) == (50.0, 40.0)
-    assert against.original_surplus(run) == 1.5, "900 steps taken for 600 counted"
+    assert seed.returns["hopper_3"] == {300: 2.0, 600: 15.0}
+    assert seed.mean_over_bodies() == {300: pytest.approx(5.0 / 3), 600: pytest.approx(22.0 / 3)}
+    assert seed.seconds == {300: 2.0, 600: 5.0}, "a point's time is that of its last round"
+    assert curves.original_throughput(run) == (50.0, 40.0)
+    assert curves.original_surplus(run) == 1.5, "900 steps taken for 600 counted"
 
 
 def test_welch_test_tells_a_real_difference_from_noise():
     spread = np.array([-15.0, -5.0, 0.0, 5.0, 15.0])
-    low, shifted_by_noise, far = (against.Final(centre + spread) for centre in (100.0, 104.0, 300.0))
-    assert against.welch(low, shifted_by_noise) > 0.5
-    assert against.welch(low, far) < 1e-6
-    assert math.isnan(against.welch(against.Final(np.array([1.0])), far)), "one seed has no variance"
+    low, shifted_by_noise, far = (returns.Final(centre + spread) for centre in (100.0, 104.0, 300.0))
+    assert returns.welch(low, shifted_by_noise) > 0.5
+    assert returns.welch(low, far) < 1e-6
+    assert math.isnan(returns.welch(returns.Final(np.array([1.0])), far)), "one seed has no variance"
 
 
 def test_time_to_reach_is_the_first_point_where_the_mean_over_seeds_gets_there():
     seeds = [
-        against.SeedCurves({"a": {1: 0.0, 2: 10.0, 3: 30.0}}, {1: 10.0, 2: 20.0, 3: 30.0}),
-        against.SeedCurves({"a": {1: 0.0, 2: 20.0, 3: 30.0}}, {1: 12.0, 2: 22.0, 3: 32.0}),
+        curves.SeedCurves({"a": {1: 0.0, 2: 10.0, 3: 30.0}}, {1: 10.0, 2: 20.0, 3: 30.0}),
+        curves.SeedCurves({"a": {1: 0.0, 2: 20.0, 3: 30.0}}, {1: 12.0, 2: 22.0, 3: 32.0}),
     ]
-    assert against.time_to_reach(seeds, 15.0) == 21.0
-    assert against.time_to_reach(seeds, 31.0) is None
+    assert returns.time_to_reach(seeds, 15.0) == 21.0
+    assert returns.time_to_reach(seeds, 31.0) is None
 
 
 def plotted(csv_path: Path) -> dict[tuple[str, str], list[dict[str, str]]]:
@@ -148,13 +146,13 @@ def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys)
     assert against.main(argv) == 0
     lines = plotted(tmp_path / "hopper.csv")
     panels = ["Hopper++: mean over bodies", "Hopper++: hopper_3", "Hopper++: hopper_4", "Hopper++: hopper_5"]
-    assert sorted(lines) == sorted((panel, against.OURS) for panel in panels)
-    mean_line = lines["Hopper++: mean over bodies", against.OURS]
+    assert sorted(lines) == sorted((panel, runs.OURS) for panel in panels)
+    mean_line = lines["Hopper++: mean over bodies", runs.OURS]
     assert [int(row["env_steps"]) for row in mean_line] == [300, 600]
     assert all(int(row["seeds"]) == MICRO.seeds for row in mean_line)
     assert (tmp_path / "hopper.png").stat().st_size > 10_000
     report = (tmp_path / "against_original.md").read_text()
-    assert f"| {against.OURS} | {MICRO.seeds} |" in report
+    assert f"| {runs.OURS} | {MICRO.seeds} |" in report
     assert "Welch" not in report, "no test without the original's side"
     # A second call keeps the finished run instead of training it again.
     capsys.readouterr()
@@ -168,23 +166,23 @@ def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys)
     "set ORIGINAL_PYTHON and ORIGINAL_TOOLS to run the original side",
 )
 def test_original_side_at_micro_scale_trains_every_seed_and_lands_on_the_grid(tmp_path, monkeypatch):
-    monkeypatch.setattr(against, "ORIGINAL_WORK", tmp_path / "original-tree")
+    monkeypatch.setattr(runs, "ORIGINAL_WORK", tmp_path / "original-tree")
     argv = [
         "--scale", "micro", "--sets", "hopper", "--only", "original", "--out", str(tmp_path),
         "--original-python", str(ORIGINAL_PYTHON), "--original-tools", str(ORIGINAL_TOOLS),
     ]  # fmt: skip
     assert against.main(argv) == 0
-    for run in against.original_runs(tmp_path, MICRO, "hopper"):
+    for run in runs.original_runs(tmp_path, MICRO, "hopper"):
         assert run.finished()
         assert json.loads((run.folder / "args.txt").read_text())["max_timesteps"] == 600
-        assert set(against.original_curves(run).mean_over_bodies()) <= {300, 600}
-    assert f"| {against.ORIGINAL} | {MICRO.seeds} |" in (tmp_path / "against_original.md").read_text()
+        assert set(curves.original_curves(run).mean_over_bodies()) <= {300, 600}
+    assert f"| {runs.ORIGINAL} | {MICRO.seeds} |" in (tmp_path / "against_original.md").read_text()
 
 
 def test_the_body_table_shows_which_body_disagrees():
     def seeds(far_body_value):
         return [
-            against.SeedCurves(
+            curves.SeedCurves(
                 {
                     "hopper_3": {600: 100.0 + k},
                     "hopper_4": {600: 50.0 - k},
@@ -195,7 +193,7 @@ def test_the_body_table_shows_which_body_disagrees():
             for k in (-2.0, 0.0, 1.0, 3.0)
         ]
 
-    table = against.body_table({against.ORIGINAL: seeds(300.0), against.OURS: seeds(40.0)}, MICRO, "hopper")
+    table = against.body_table({runs.ORIGINAL: seeds(300.0), runs.OURS: seeds(40.0)}, MICRO, "hopper")
     rows = {row.split("|")[1].strip(): row.split("|")[-2].strip() for row in table[2:]}
     assert float(rows["hopper_3"]) == pytest.approx(1.0) and float(rows["hopper_4"]) == pytest.approx(1.0)
     assert float(rows["hopper_5"]) < 1e-3

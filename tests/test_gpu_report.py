@@ -1,4 +1,4 @@
-"""experiments/gpu_report.py: its copy sweeps and time budget, and --tiny end to end on the CPU.
+"""experiments/benchmarks/gpu_report.py: its copy sweeps and time budget, and --tiny end to end on the CPU.
 
 The end-to-end test steps the hopper_3 folder set instead of --tiny's Hopper++ (one body to trace and
 compile instead of three), at the same copies 1 and 2.
@@ -13,7 +13,6 @@ import pytest
 from subprocesses import python_path_environment
 
 REPO = Path(__file__).resolve().parents[1]
-SCRIPT = REPO / "experiments" / "gpu_report.py"
 ENVIRONMENT_FIELDS = {
     "set",
     "copies",
@@ -44,9 +43,8 @@ UPDATE_FIELDS = {
 
 
 @pytest.fixture
-def gpu_report(monkeypatch):
-    monkeypatch.syspath_prepend(str(REPO / "experiments"))
-    import gpu_report
+def gpu_report():
+    from experiments.benchmarks import gpu_report
 
     return gpu_report
 
@@ -87,13 +85,13 @@ def test_a_sweep_stops_where_the_time_budget_ends(gpu_report):
 
 def test_the_budget_starts_no_run_that_cannot_fit(gpu_report):
     with pytest.raises(gpu_report.WorkerError) as spent:
-        gpu_report.Budget(0.0).run({"kind": "info"}, "info")
+        gpu_report.Budget(0.0).run(gpu_report.Job(gpu_report.info_worker), "info")
     budget = gpu_report.Budget(100.0)
     budget.last_seconds["cwhh"] = (
         150.0  # the previous, smaller count of this sweep took longer than what is left
     )
     with pytest.raises(gpu_report.WorkerError, match="s left of the budget, 150 s expected") as too_long:
-        budget.run({"kind": "info"}, "cwhh")
+        budget.run(gpu_report.Job(gpu_report.info_worker), "cwhh")
     assert spent.value.timed_out and too_long.value.timed_out
     assert not (spent.value.out_of_memory or too_long.value.out_of_memory)
 
@@ -110,7 +108,7 @@ def test_tiny_report_writes_json_and_markdown(hopper_folder, tmp_path):
         str(hopper_folder),
     ]
     result = subprocess.run(
-        [sys.executable, str(SCRIPT), "--tiny", *sets, "--out", str(out)],
+        [sys.executable, "-m", "experiments.benchmarks.gpu_report", "--tiny", *sets, "--out", str(out)],
         capture_output=True,
         text=True,
         cwd=REPO,

@@ -7,16 +7,12 @@ holds when that run was trained first.
 
 import csv
 import dataclasses
-import sys
 from pathlib import Path
 
 import pytest
 from conftest import tiny_train_config, train_flags
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "experiments"))
-
-import paper  # noqa: E402
+from experiments import paper
 
 RUN_FLAGS = ("--env", "--algo", "--seeds", "--steps", "--run-dir")
 """Flags every run of the grid sets itself."""

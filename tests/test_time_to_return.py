@@ -3,18 +3,14 @@ benchmark at micro scale against original runs written as the original's tools l
 
 import csv
 import sys
-from pathlib import Path
 
 import pytest
+from test_against_original import write_original_seed
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "experiments"))
+from experiments import time_to_return as ttr
+from experiments.original import curves, returns, runs
 
-import against_original as against  # noqa: E402
-import time_to_return as ttr  # noqa: E402
-from test_against_original import write_original_seed  # noqa: E402
-
-MICRO = against.SCALES["micro"]
+MICRO = runs.SETTINGS["micro"]
 
 
 def test_the_crossing_is_the_first_point_whose_trailing_mean_reaches_r():
@@ -26,16 +22,16 @@ def test_the_crossing_is_the_first_point_whose_trailing_mean_reaches_r():
 
 def test_machine_seconds_per_seed_charge_every_core_to_the_seeds_run_at_once():
     seeds = [
-        against.SeedCurves({"a": {300: 1.0}}, {300: 100.0}),
-        against.SeedCurves({"a": {300: 2.0}}, {300: 120.0}),
+        curves.SeedCurves({"a": {300: 1.0}}, {300: 100.0}),
+        curves.SeedCurves({"a": {300: 2.0}}, {300: 120.0}),
     ]
     assert ttr.machine_seconds(seeds, 2, 4) == ({300: 50.0}, {300: 60.0}), "4 seeds on 2 cores"
     assert ttr.machine_seconds(seeds, 1, 1) == ({300: 100.0}, {300: 120.0}), "one seed on one core"
 
 
 def test_the_final_return_leaves_out_the_points_past_the_budget():
-    curve = against.SeedCurves({"hopper_3": {400: 1.0, 600: 3.0, 900: 100.0}}, {})
-    assert against.final_returns([curve], MICRO, "hopper").values.tolist() == [3.0], "600 is the budget"
+    curve = curves.SeedCurves({"hopper_3": {400: 1.0, 600: 3.0, 900: 100.0}}, {})
+    assert returns.final_returns([curve], MICRO, "hopper").values.tolist() == [3.0], "600 is the budget"
     assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("hopper") == 1200, "rounded up to a point (300)"
     assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("walker") == MICRO.budget("walker")
 
@@ -56,7 +52,7 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
         ("--preset", "fast", "--copies", "2", "--iteration.chunk", "50", "--iteration.updates", "4"),
     )
     original_out = tmp_path / "against"
-    for seed, run in enumerate(against.original_runs(original_out, MICRO, "hopper")):
+    for seed, run in enumerate(runs.original_runs(original_out, MICRO, "hopper")):
         rewards = [10.0 + seed, 20.0 + seed, 20.0 - seed]
         write_original_seed(
             run,

@@ -1,15 +1,10 @@
-"""experiments/update_benchmark.py: the FLOP count it divides by time is XLA's count of the program, and the
+"""experiments/benchmarks/update.py: the FLOP count it divides by time is XLA's count of the program, and the
 PyTorch reference (SWAT's update) is given a FLOP rate only beside SWAT."""
-
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-
-from update_benchmark import compiled_flops, matmul_ceiling, reference_report
+from experiments.benchmarks.update import compiled_flops, matmul_ceiling, reference_report
 
 
 def test_flops_of_a_matmul_are_two_n_cubed():

@@ -1,17 +1,11 @@
-"""experiments/variants_experiment.py: its plan, and the summary and figure it draws from evaluation rows."""
+"""experiments/variants.py: its plan, and the summary and figure it draws from evaluation rows."""
 
 from __future__ import annotations
-
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "experiments"))
-
-import variants_experiment as experiment  # noqa: E402
+from experiments import variants as experiment
 
 
 def test_the_plan_trains_the_same_run_with_and_without_variants(tmp_path):

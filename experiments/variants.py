@@ -1,7 +1,7 @@
 """SWAT trained on a set's bodies against SWAT trained on variants of them, both evaluated zero-shot on
 held-out variants: does training on variants help a policy meet bodies it has not seen?
 
-    python experiments/variants_experiment.py [--env hopper] [--out experiments/results/variants] [--dry-run]
+    python -m experiments.variants [--env hopper] [--out experiments/results/variants] [--dry-run]
 
 Two runs of the ``tiny`` scale of ``experiments/paper.py`` (small networks, the ``fast`` preset, 3 seeds
 in one program, 80K steps summed over the bodies): ``nominal`` trains on the set's train bodies,
@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 import tyro
-from machine import cpu_model, host_cores, software_versions
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from paper import SCALES, RunSpec, exit_status, read_timings, train_all
 
+from experiments.machine import cpu_model, host_cores, software_versions
+from experiments.paper import SCALES, RunSpec, exit_status, read_timings, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.eval import EvalOptions, evaluate_run
 from swat_jax.runs.metrics import standard_error
@@ -147,7 +147,7 @@ def report(options: Options, table: dict, seconds: dict[str, float]) -> str:
     lines = [
         f"# SWAT on {options.env}: trained on the bodies or on variants, evaluated on held-out variants",
         "",
-        f"Command: `python experiments/variants_experiment.py --env {options.env}`, "
+        f"Command: `python -m experiments.variants --env {options.env}`, "
         f"{datetime.date.today().isoformat()}, {cpu_model()} ({host_cores()} cores), {software_versions()}.",
         "",
         "| evaluated on | " + " | ".join(f"trained on {arm}" for arm in ARMS) + " |",

@@ -16,7 +16,7 @@ Cache states, in this order, each in its own process:
 - other set: for Warp, a new JAX cache and the Warp kernel cache the cold run filled, on ``--other-set``
   (a run of a different set on a machine that has run Warp once: Warp's kernels serve every body).
 
-    python experiments/compile_benchmark.py [--env animal_walkers] [--other-set hopper] [--preset paper]
+    python -m experiments.benchmarks.compile_time [--env animal_walkers] [--other-set hopper] [--preset paper]
         [--physics jax warp] [--iterations 2]
 """
 
@@ -24,18 +24,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import resource
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-from machine import cpu_model, host_cores, software_versions
-
+from experiments.machine import cpu_model, host_cores, software_versions
+from experiments.workers import Job, in_fresh_process
 from swat_jax.compilation_cache import PROGRAMS, enable_caches
 
 PHASES = ("build", "init_state", "trace", "compile", "first_call")
@@ -94,11 +91,8 @@ def run_child(
     environment = dict(os.environ, SWAT_JAX_CACHE_DIR=str(jax_cache), WARP_CACHE_PATH=str(warp_cache))
     environment.pop("JAX_COMPILATION_CACHE_DIR", None)
     environment.pop("SWAT_JAX_COMPILATION_CACHE", None)
-    command = [sys.executable, __file__, "--child", env, preset, physics, str(iterations)]
-    completed = subprocess.run(command, env=environment, capture_output=True, text=True, check=False)
-    if completed.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} failed:\n{completed.stderr[-3000:]}")
-    return json.loads(completed.stdout.strip().splitlines()[-1])
+    arguments = {"env": env, "preset": preset, "physics": physics, "iterations": iterations}
+    return in_fresh_process(Job(measure, arguments), environment)
 
 
 def main() -> None:
@@ -117,12 +111,7 @@ def main() -> None:
     parser.add_argument(
         "--iterations", type=int, default=2, help="timed iterations after the first (default 2)"
     )
-    parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.child:
-        env, preset, physics, iterations = args.child
-        print(json.dumps(measure(env, preset, physics, int(iterations))))
-        return
 
     rows = []
     with tempfile.TemporaryDirectory() as scratch:

@@ -7,7 +7,7 @@ arm starts from its own empty compilation cache, so it pays its compiles as a us
 time (the sequential runs after the first hit the cache that the first one wrote). Every command is
 a real training run (start-up, compile, training, checkpoints) and is timed from outside.
 
-    python experiments/seeds_benchmark.py [--env hopper] [--seeds 5] [--steps 30000]
+    python -m experiments.benchmarks.seeds [--env hopper] [--seeds 5] [--steps 30000]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine import cpu_model, host_cores, software_versions
+from experiments.machine import cpu_model, host_cores, software_versions
 
 SMALL_NETWORK = ["--width", "32", "--layers", "1", "--feedforward", "64"]
 ITERATION = [

@@ -13,7 +13,7 @@ Actions per second count observations answered (one action for every limb of the
 per second: batch x calls / seconds, each call waited for. The first call of each batch size compiles
 and is reported separately; the rate is the median over repeats of calls for at least ``--seconds``.
 
-    python experiments/export_benchmark.py [--set cwhh] [--network swat] [--batches 1 16 256 4096]
+    python -m experiments.benchmarks.export [--set cwhh] [--network swat] [--batches 1 16 256 4096]
         [--seconds 1] [--repeats 3]
 """
 
@@ -28,22 +28,16 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from machine import cpu_model
-from update_benchmark import observation_features
 
+from experiments.machine import cpu_model
+from experiments.timing import first_call_seconds
 from swat_jax import export, serving
 from swat_jax.compilation_cache import enable_caches
+from swat_jax.envs.observation import features_per_limb
 from swat_jax.morphology import get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config, param_count
 
 Call = Callable[[np.ndarray], jax.Array]
-
-
-def first_call_seconds(call: Call, observation: np.ndarray) -> float:
-    """Wall time of the first call at this batch size (tracing and compilation included)."""
-    start = time.perf_counter()
-    jax.block_until_ready(call(observation))
-    return time.perf_counter() - start
 
 
 def actions_per_second(call: Call, observation: np.ndarray, seconds: float, repeats: int) -> float:
@@ -65,7 +59,7 @@ def benchmark(
     names = get_set(set_name).split("all")
     bodies = [load(name) for name in names]
     structures = pad_structures(bodies)
-    features = observation_features(bodies)
+    features = features_per_limb(bodies[0].family.num_limb_types)  # one vocabulary per set
     actor, _ = make_actor_critic(network_config(network), features)
     params = jax.jit(actor.init)(jax.random.key(0))
     row = int(np.argmax(structures.num_limbs))
@@ -93,7 +87,9 @@ def benchmark(
         observation *= body_structure.limb_mask[None, :, None]
         result: dict[str, float] = {"batch": batch}
         for name, call in calls.items():
-            result[f"{name} first call"] = first_call_seconds(call, observation)
+            result[f"{name} first call"] = first_call_seconds(
+                lambda call=call, observation=observation: call(observation)
+            )
             result[name] = actions_per_second(call, observation, seconds, repeats)
         results.append(result)
     setup = {

@@ -8,7 +8,7 @@ paper preset's lock-step rounds, the steps it counts: fewer than it takes), samp
 of TD3 update work (updates x batch / s), and both as ratios to the first preset (``paper`` by default) measured in
 the same run. ``--collection`` adds the paper preset's collection alone.
 
-    python experiments/preset_benchmark.py [--env hopper] [--algo swat] [--iterations 3]
+    python -m experiments.benchmarks.presets [--env hopper] [--algo swat] [--iterations 3]
         [--capacity 100000] [--fast-copies 16 64] [--fast-updates 1 64] [--physics auto|c|jax]
         [--seeds 1] [--sizes 32 1 64] [--presets paper fast] [--collection]
 
@@ -24,8 +24,8 @@ import time
 from collections.abc import Sequence
 
 import jax
-from machine import cpu_model
 
+from experiments.machine import cpu_model
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.runs.config import PRESETS, TrainConfig
 from swat_jax.runs.experiment import Experiment

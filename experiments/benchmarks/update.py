@@ -17,7 +17,7 @@ process. ``--reference RUN_SH`` runs the original PyTorch update (``run.sh SET U
 the same sitting, and prints both ratios (for ``--network swat``; the reference is SWAT's update, so for
 the other networks only the ratio of transitions per second).
 
-    python experiments/update_benchmark.py [--set animal_walkers] [--network swat] [--batch 100]
+    python -m experiments.benchmarks.update [--set animal_walkers] [--network swat] [--batch 100]
         [--updates 10] [--repeats 3] [--reference ../shared/tools/reference-update/run.sh]
 """
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-import statistics
 import subprocess
 import time
 from collections.abc import Callable
@@ -35,24 +34,17 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from machine import cpu_model
 
+from experiments.machine import cpu_model
+from experiments.timing import median_seconds
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.envs.observation import KINEMATIC_FEATURES
-from swat_jax.morphology import Morphology, StructureBatch, get_set, limb_buckets, load, pad_structures
+from swat_jax.envs.observation import features_per_limb
+from swat_jax.morphology import StructureBatch, get_set, limb_buckets, load, pad_structures
 from swat_jax.networks import NetworkConfig, make_actor_critic, network_config, param_count
 from swat_jax.td3.learner import Learner, LearnerState, TD3Config
 from swat_jax.td3.replay import Transitions
 
 UpdateLoop = Callable[[LearnerState, Transitions, StructureBatch, jax.Array], LearnerState]
-
-
-def observation_features(bodies: list[Morphology]) -> int:
-    """Observation values per limb (kinematics, limb-type one-hot, joint angle and range), shared by all."""
-    widths = {KINEMATIC_FEATURES + body.family.num_limb_types + 3 for body in bodies}
-    if len(widths) != 1:
-        raise ValueError(f"bodies of the set differ in observation width: {sorted(widths)}")
-    return widths.pop()
 
 
 def random_transitions(structures: StructureBatch, batch: int, features: int) -> Transitions:
@@ -173,17 +165,6 @@ def matmul_ceiling(size: int = 2048, repeats: int = 5) -> float:
     return 2 * size**3 / median_seconds(lambda: product(a), repeats)
 
 
-def median_seconds(run: Callable[[], Any], repeats: int) -> float:
-    """Median wall time of ``run()`` after one warm-up call."""
-    jax.block_until_ready(run())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(run())
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def task_slices(tree: Transitions | StructureBatch, tasks: int) -> list:
     """The one-task slices [k:k+1] of every leaf, for k in range(tasks)."""
     return [jax.tree_util.tree_map(lambda leaf, k=k: leaf[k : k + 1], tree) for k in range(tasks)]
@@ -206,7 +187,7 @@ def update_problem(set_name: str, network: NetworkConfig, batch: int, buckets: i
     """A fresh learner of ``network`` on every training body of ``set_name`` and random transitions [T, batch];
     ``buckets`` > 1 computes the tasks in that many limb buckets."""
     bodies = [load(name) for name in get_set(set_name).split("train")]
-    features = observation_features(bodies)
+    features = features_per_limb(bodies[0].family.num_limb_types)  # one vocabulary per set
     structures = jax.tree_util.tree_map(jnp.asarray, pad_structures(bodies))
     transitions = random_transitions(structures, batch, features)
     actor, critic = make_actor_critic(network, obs_features=features)

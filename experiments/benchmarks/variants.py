@@ -7,7 +7,7 @@ warm-up call; compile time is reported apart, and so is the time to build the N 
 load their MJCF files, then ``BodyEnv``'s compile and stacking). The ratio is variants' steps/s over the
 nominal copies'.
 
-    python experiments/variants_benchmark.py [--body hopper_3] [--counts 1 64 1024] [--steps 50]
+    python -m experiments.benchmarks.variants [--body hopper_3] [--counts 1 64 1024] [--steps 50]
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from pathlib import Path
 import jax
 import numpy as np
 import tyro
-from machine import cpu_model, host_cores, software_versions
 
 import swat_jax
+from experiments.machine import cpu_model, host_cores, software_versions
 from swat_jax.envs import BodyEnv
 from swat_jax.morphology.variants import Variation, write_variants
 

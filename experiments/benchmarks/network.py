@@ -6,22 +6,21 @@ for a batch of 100 observations per task, vmapped over every training body of th
 stand in for observations. Reports the median over repeats after one warm-up call, and SWAT and SMP
 relative to AMORPHEUS from the same run.
 
-    python experiments/network_benchmark.py [--repeats 5] [--batch 100]
+    python -m experiments.benchmarks.network [--repeats 5] [--batch 100]
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from machine import cpu_model
 
+from experiments.machine import cpu_model
+from experiments.timing import median_seconds
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import LimbNetwork, make_actor_critic, network_config
@@ -30,17 +29,6 @@ SETS = (("animal_walkers", "Animal-Walkers", 21), ("cwhh", "CWHH++", 19))
 """(set name for get_set, display name, observation values per limb)."""
 NETWORKS = ("swat", "amorpheus", "smp")
 COLUMNS = ("actor forward", "actor fwd+bwd", "critic forward", "critic fwd+bwd")
-
-
-def median_milliseconds(function: Callable[..., Any], args: tuple, repeats: int) -> float:
-    """Median wall time of ``function(*args)`` after one warm-up (compiling) call."""
-    jax.block_until_ready(function(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(function(*args))
-        times.append(time.perf_counter() - start)
-    return 1000 * statistics.median(times)
 
 
 def timed_functions(
@@ -78,7 +66,10 @@ def benchmark_set(set_name: str, features: int, batch: int, repeats: int) -> tup
         actor, critic = make_actor_critic(network_config(name), features)
         args = (actor.init(jax.random.key(0)), critic.init(jax.random.key(1)), obs, actions)
         functions = timed_functions(actor, critic, structures)
-        results[name] = {column: median_milliseconds(functions[column], args, repeats) for column in COLUMNS}
+        results[name] = {
+            column: 1000 * median_seconds(lambda f=functions[column], args=args: f(*args), repeats)
+            for column in COLUMNS
+        }
     return structures, results
 
 

@@ -21,20 +21,18 @@ Every MJX configuration runs in a fresh subprocess, so that its compilation, mem
 state are its own. The throughput runs use the persistent compilation cache as configured (their
 compile column then shows a cache load); ``SWAT_JAX_COMPILATION_CACHE=0`` gives cold compile times.
 
-    python experiments/env_benchmark.py [--sets hopper walker animal_walkers cwhh] [--copies 1 16]
+    python -m experiments.benchmarks.env [--sets hopper walker animal_walkers cwhh] [--copies 1 16]
         [--steps 100] [--physics jax|warp|c] [--compile-sets hopper animal_walkers] [--compile-only | --no-compile]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing
 import os
 import platform
 import resource
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -45,8 +43,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from machine import cpu_model, host_cores, host_memory_gib, software_versions
 
+from experiments.machine import cpu_model, host_cores, host_memory_gib, software_versions
+from experiments.workers import Job, WorkerError, in_fresh_process
 from swat_jax.compilation_cache import cache_directory, enable_caches
 from swat_jax.envs.multi_task import MultiTaskEnv, MultiTaskState
 from swat_jax.morphology import get_set, load
@@ -68,7 +67,6 @@ DISPLAY_NAMES = {
 }
 COMPILE_TARGETS = {"animal_walkers": (60.0, 10.0)}
 """Issue targets, cold and warm seconds to trace and compile the step, on a 2-core machine."""
-OUT_OF_MEMORY_MARKERS = ("RESOURCE_EXHAUSTED", "Out of memory", "out of memory")
 GIB = 2**30
 
 
@@ -176,69 +174,19 @@ def info_worker() -> dict[str, Any]:
     }
 
 
-Worker = Callable[..., dict[str, Any]]
-WORKERS: dict[str, Worker] = {"info": info_worker, "throughput": throughput_worker, "compile": compile_worker}
-"""The measurements a worker process can run, by the ``kind`` of its spec."""
-
-
-def run_worker(spec: dict[str, Any], workers: dict[str, Worker] = WORKERS) -> None:
-    """Run one measurement described by ``spec`` and print its result as the last line of JSON."""
-    kind = spec.pop("kind")
-    print(json.dumps(workers[kind](**spec)), flush=True)
-
-
 # --- the orchestrating process (never touches the JAX backend) -----------------------------------------
 
 
-def throughput_spec(
-    set_name: str, copies: int, steps: int, repeats: int, physics: str = "jax"
-) -> dict[str, Any]:
-    """The worker spec of one :func:`throughput_worker` measurement."""
-    return {
-        "kind": "throughput",
+def throughput_job(set_name: str, copies: int, steps: int, repeats: int, physics: str = "jax") -> Job:
+    """One :func:`throughput_worker` measurement, for a fresh process."""
+    arguments = {
         "set_name": set_name,
         "copies": copies,
         "steps": steps,
         "repeats": repeats,
         "physics": physics,
     }
-
-
-class WorkerError(RuntimeError):
-    """A worker process failed or was not run; ``out_of_memory`` tells an allocation failure, ``timed_out``
-    a run stopped (or not started) for lack of time, from other errors."""
-
-    def __init__(self, message: str, out_of_memory: bool = False, timed_out: bool = False):
-        super().__init__(message)
-        self.out_of_memory = out_of_memory
-        self.timed_out = timed_out
-
-
-def in_subprocess(
-    spec: dict[str, Any],
-    environment: dict[str, str] | None = None,
-    *,
-    script: str = __file__,
-    timeout: float | None = None,
-) -> dict[str, Any]:
-    """Run ``spec`` in a fresh Python process of ``script`` (whose ``--worker`` runs :func:`run_worker`),
-    stopped after ``timeout`` seconds, and return its result."""
-    try:
-        completed = subprocess.run(
-            [sys.executable, script, "--worker", json.dumps(spec)],
-            capture_output=True,
-            text=True,
-            env=environment,
-            check=False,
-            timeout=timeout,
-        )
-    except subprocess.TimeoutExpired as error:
-        raise WorkerError(f"worker {spec} stopped after {timeout:.0f} s", timed_out=True) from error
-    if completed.returncode != 0:
-        tail = "\n".join(completed.stderr.strip().splitlines()[-15:])
-        out_of_memory = any(marker in completed.stderr for marker in OUT_OF_MEMORY_MARKERS)
-        raise WorkerError(f"worker {spec} failed (exit {completed.returncode}):\n{tail}", out_of_memory)
-    return json.loads(completed.stdout.strip().splitlines()[-1])
+    return Job(throughput_worker, arguments)
 
 
 def machine_description(info: dict[str, Any]) -> str:
@@ -345,7 +293,7 @@ def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: 
         c_speed = c_steps_per_second(train_bodies(set_name), args.c_steps)
 
         def measure(count: int, set_name: str = set_name) -> dict[str, Any]:
-            return in_subprocess(throughput_spec(set_name, count, args.steps, args.repeats, args.physics))
+            return in_fresh_process(throughput_job(set_name, count, args.steps, args.repeats, args.physics))
 
         set_copies = copies_for_set(set_name, copies, args.largest_only_above)
         rows, _ = sweep_copies(set_name, set_copies, measure, args.min_gain, started)
@@ -383,18 +331,15 @@ def compile_table(args: argparse.Namespace, started: float) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for set_name in args.compile_sets:
-        spec = {
-            "kind": "compile",
-            "set_name": set_name,
-            "copies": args.compile_copies,
-            "physics": args.physics,
-        }
+        job = Job(
+            compile_worker, {"set_name": set_name, "copies": args.compile_copies, "physics": args.physics}
+        )
         with tempfile.TemporaryDirectory(prefix="swat_jax_cache_") as cache_dir:
             environment = compile_environment(cache_dir)
             progress(f"{display_name(set_name)}: cold compile of the step (empty cache)", started)
-            cold = in_subprocess(spec, environment)
+            cold = in_fresh_process(job, environment)
             progress(f"{display_name(set_name)}: warm compile of the step (cache filled)", started)
-            warm = in_subprocess(spec, environment)
+            warm = in_fresh_process(job, environment)
         totals = [run["trace_s"] + run["compile_s"] for run in (cold, warm)]
         lines.append(
             f"| {display_name(set_name)} | {cold['bodies']} | {args.compile_copies} | {warm['build_s']:.1f} "
@@ -448,18 +393,14 @@ def parse_arguments() -> argparse.Namespace:
     measured = parser.add_mutually_exclusive_group()
     measured.add_argument("--compile-only", action="store_true", help="only the cold and warm compile times")
     measured.add_argument("--no-compile", action="store_true", help="skip the cold and warm compile times")
-    parser.add_argument("--worker", help=argparse.SUPPRESS)
     return parser.parse_args()
 
 
 def main() -> None:
     enable_caches()
     args = parse_arguments()
-    if args.worker:
-        run_worker(json.loads(args.worker))
-        return
     started = time.perf_counter()
-    info = in_subprocess({"kind": "info"})
+    info = in_fresh_process(Job(info_worker))
     copies = args.copies or DEFAULT_COPIES["cpu" if info["platform"] == "cpu" else "gpu"]
     print(machine_description(info))
     print(f"Command: python {' '.join(sys.argv)}", flush=True)

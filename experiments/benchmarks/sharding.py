@@ -1,27 +1,26 @@
 """Training iterations over a device mesh against one device: environment steps per second after compilation.
 
-Each arm runs in its own process (this script with ``--arm N``) with ``--xla_force_host_platform_device_count``
+Each arm runs in a fresh process (:mod:`experiments.workers`) with ``--xla_force_host_platform_device_count``
 fake CPU devices (the flag must be set before JAX starts) and trains over the first N of them, as
 ``train --devices N`` lays a run out (:mod:`swat_jax.td3.sharding`), timed by the preset benchmark's
 ``measure``. On a CPU the fake devices share the same cores, so this measures what the partitioning
 costs, not a speed-up; on a multi-GPU machine ``--real`` uses the real devices.
 
-    python experiments/sharding_benchmark.py [--env hopper] [--seeds 4] [--devices 1 2 4] [--iterations 5]
+    python -m experiments.benchmarks.sharding [--env hopper] [--seeds 4] [--devices 1 2 4] [--iterations 5]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
-import sys
 import time
+from typing import Any
 
 import jax
-from machine import cpu_model, host_cores, software_versions
-from preset_benchmark import measure
 
+from experiments.benchmarks.presets import measure
+from experiments.machine import cpu_model, host_cores, software_versions
+from experiments.workers import Job, in_fresh_process
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.runs.config import TrainConfig
 from swat_jax.td3.iteration import IterationConfig
@@ -43,33 +42,27 @@ def arm_config(env: str, seeds: int) -> TrainConfig:
     )
 
 
-def arm(env: str, seeds: int, devices: int, iterations: int) -> None:
-    """Measure one arm in this process and print its JSON line."""
+def arm(env: str, seeds: int, devices: int, iterations: int) -> dict[str, Any]:
+    """One arm, measured in this process: its mesh, compile seconds and steps per second."""
     config = arm_config(env, seeds)
     chosen = jax.devices()[:devices]
     result = measure(f"{devices} devices", config, iterations, chosen)
     layout = placement(seeds, len(config.training_bodies()), config.copies, chosen)
-    print(
-        json.dumps(
-            {
-                "devices": devices,
-                "mesh": layout.describe().split(";")[0],
-                "compile_s": result.compile_seconds,
-                "steps_per_second": result.env_steps_per_second * seeds,
-            }
-        )
-    )
+    return {
+        "devices": devices,
+        "mesh": layout.describe().split(";")[0],
+        "compile_s": result.compile_seconds,
+        "steps_per_second": result.env_steps_per_second * seeds,
+    }
 
 
-def run_arm(args: argparse.Namespace, devices: int) -> dict:
-    """One arm in its own process; its JSON line."""
+def run_arm(args: argparse.Namespace, devices: int) -> dict[str, Any]:
+    """One arm in a fresh process, with fake CPU devices unless ``--real``."""
     environment = dict(os.environ)
     if not args.real:
         environment["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={max(args.devices)}"
-    command = [sys.executable, __file__, "--env", args.env, "--seeds", str(args.seeds)]
-    command += ["--iterations", str(args.iterations), "--arm", str(devices)]
-    result = subprocess.run(command, env=environment, check=True, capture_output=True, text=True)
-    return json.loads(result.stdout.strip().splitlines()[-1])
+    job = Job(arm, {"env": args.env, "seeds": args.seeds, "devices": devices, "iterations": args.iterations})
+    return in_fresh_process(job, environment)
 
 
 def main() -> None:
@@ -82,11 +75,7 @@ def main() -> None:
     )
     parser.add_argument("--iterations", type=int, default=5, help="timed iterations per arm (default 5)")
     parser.add_argument("--real", action="store_true", help="the machine's real devices, not fake CPU ones")
-    parser.add_argument("--arm", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.arm:
-        arm(args.env, args.seeds, args.arm, args.iterations)
-        return
 
     start = time.perf_counter()
     rows = [run_arm(args, devices) for devices in args.devices]

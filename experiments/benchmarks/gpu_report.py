@@ -24,15 +24,14 @@ longer than what is left (its series' previous run took longer) is not started; 
 "not measured". ``--tiny`` runs the same code on a CPU in CI time: the hopper set at 1 and 2 copies, a
 few steps, a width-16 one-layer SWAT::
 
-    python experiments/gpu_report.py --out reports/gpu           # reports/gpu/report.json, report.md
-    python experiments/gpu_report.py --tiny --out /tmp/gpu_report
+    python -m experiments.benchmarks.gpu_report --out reports/gpu           # reports/gpu/report.json, report.md
+    python -m experiments.benchmarks.gpu_report --tiny --out /tmp/gpu_report
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import signal
 import subprocess
 import sys
@@ -42,23 +41,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from env_benchmark import (
-    WORKERS,
-    WorkerError,
+
+from experiments.benchmarks.env import (
     c_steps_per_second_on_cores,
     display_name,
     gib,
-    in_subprocess,
+    info_worker,
     peak_memory,
     progress,
-    run_worker,
     sweep_copies,
-    throughput_spec,
+    throughput_job,
     train_bodies,
 )
-from machine import cpu_model, host_cores, host_memory_gib
-from update_benchmark import vmapped_throughput
-
+from experiments.benchmarks.update import vmapped_throughput
+from experiments.machine import cpu_model, host_cores, host_memory_gib
+from experiments.workers import Job, WorkerError, in_fresh_process
 from swat_jax.cli import strict_json
 from swat_jax.compilation_cache import cache_directory, enable_caches
 from swat_jax.networks import network_config
@@ -206,9 +203,6 @@ def training_worker(
     }
 
 
-REPORT_WORKERS = {**WORKERS, "update": update_worker, "training": training_worker}
-
-
 class Budget:
     """The report's time budget: runs worker processes of this script only where they fit in it."""
 
@@ -221,8 +215,8 @@ class Budget:
     def left(self) -> float:
         return self.deadline - time.perf_counter()
 
-    def run(self, spec: dict[str, Any], series: str) -> dict[str, Any]:
-        """The result of ``spec`` in a fresh process, stopped when the budget ends.
+    def run(self, job: Job, series: str) -> dict[str, Any]:
+        """The result of ``job`` in a fresh process, stopped when the budget ends.
 
         Raises:
             WorkerError: ``timed_out`` when the run was stopped, or not started because less time is left
@@ -234,7 +228,7 @@ class Budget:
         if left < needed:
             raise WorkerError(f"{left:.0f} s left of the budget, {needed:.0f} s expected", timed_out=True)
         start = time.perf_counter()
-        result = in_subprocess(spec, script=__file__, timeout=left)
+        result = in_fresh_process(job, timeout=left)
         self.last_seconds[series] = time.perf_counter() - start
         return result
 
@@ -251,9 +245,7 @@ def environment_rows(
     c_rate = c_steps_per_second_on_cores(train_bodies(set_name), settings.c_steps, cores)
 
     def measure(copies: int) -> dict[str, Any]:
-        return budget.run(
-            throughput_spec(set_name, copies, settings.steps, settings.repeats), series=set_name
-        )
+        return budget.run(throughput_job(set_name, copies, settings.steps, settings.repeats), series=set_name)
 
     rows, stop = sweep_copies(set_name, settings.copies, measure, MIN_GAIN, started)
     for row in rows:
@@ -267,20 +259,22 @@ def update_row(set_name: str, settings: ReportSettings, budget: Budget, started:
         f"{display_name(set_name)}: TD3 update of {settings.network}, batch {settings.batch} per body",
         started,
     )
-    spec = {
-        "kind": "update",
-        "set_name": set_name,
-        "network": settings.network,
-        "overrides": settings.network_overrides,
-        "batch": settings.batch,
-        "updates": settings.updates,
-        "repeats": settings.repeats,
-    }
+    job = Job(
+        update_worker,
+        {
+            "set_name": set_name,
+            "network": settings.network,
+            "overrides": settings.network_overrides,
+            "batch": settings.batch,
+            "updates": settings.updates,
+            "repeats": settings.repeats,
+        },
+    )
     row = {
         "set": set_name,
         "network": settings.network,
         "batch_per_body": settings.batch,
-        **budget.run(spec, "update"),
+        **budget.run(job, "update"),
     }
     progress(
         f"  {row['transitions_per_second']:,.0f} transitions/s (compile {row['compile_s']:.1f} s)", started
@@ -298,8 +292,7 @@ def training_rows(
             f"{display_name(settings.train_set)}: training {preset} for {settings.train_seconds:.0f} s",
             started,
         )
-        spec = {
-            "kind": "training",
+        arguments = {
             "set_name": settings.train_set,
             "preset": preset,
             "seeds": settings.train_seeds,
@@ -307,7 +300,7 @@ def training_rows(
             "flags": list(settings.train_flags),
         }
         try:
-            rows.append(budget.run(spec, "training"))
+            rows.append(budget.run(Job(training_worker, arguments), "training"))
         except WorkerError as error:
             if not error.timed_out:
                 raise
@@ -319,7 +312,7 @@ def measure_report(settings: ReportSettings, command: str) -> dict[str, Any]:
     """Every measurement of ``settings``, as the report's JSON object."""
     started = time.perf_counter()
     budget = Budget(settings.budget_s)
-    info = budget.run({"kind": "info"}, "info")
+    info = budget.run(Job(info_worker), "info")
     environment, updates, stops, c_rates, not_measured = [], [], {}, {}, []
     for set_name in settings.sets:
         rows, stops[set_name], c_rates[set_name] = environment_rows(set_name, settings, budget, started)
@@ -513,9 +506,8 @@ def parse_arguments() -> argparse.Namespace:
         type=float,
         help=f"wall seconds of each training run (default {FULL.train_seconds:.0f})",
     )
-    parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.worker is None and args.out is None:
+    if args.out is None:
         parser.error("--out is required")
     return args
 
@@ -523,9 +515,6 @@ def parse_arguments() -> argparse.Namespace:
 def main() -> None:
     enable_caches()
     args = parse_arguments()
-    if args.worker:
-        run_worker(json.loads(args.worker), REPORT_WORKERS)
-        return
     report = measure_report(settings_from(args), f"python {' '.join(sys.argv)}")
     paths = write_report(report, args.out)
     print(markdown(report))

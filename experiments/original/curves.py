@@ -1,0 +1,127 @@
+"""Both sides' learning curves on one grid: the original's ``stat.json`` rounds and log, swat_jax's metrics
+rows, binned by counted environment steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from experiments.original.runs import OriginalRun, Settings
+from swat_jax.morphology import get_set
+from swat_jax.plot import CurvePoint, summarise
+
+
+@dataclasses.dataclass(frozen=True)
+class SeedCurves:
+    """One seed's binned training returns: by body, {grid step: mean return}, and the wall clock (s from
+    the start of the seed's run) at each grid step."""
+
+    returns: dict[str, dict[int, float]]
+    seconds: dict[int, float]
+
+    def mean_over_bodies(self) -> dict[int, float]:
+        steps = sorted({step for curve in self.returns.values() for step in curve})
+        means = {
+            step: float(np.nanmean([curve.get(step, math.nan) for curve in self.returns.values()]))
+            for step in steps
+        }
+        return {step: value for step, value in means.items() if math.isfinite(value)}
+
+
+def grid_step(steps: float, interval: int, budget: int) -> int:
+    """The curve point a step count falls into: the end of its interval (capped at the budget)."""
+    return min(max(1, math.ceil(steps / interval)) * interval, budget)
+
+
+def original_curves(run: OriginalRun) -> SeedCurves:
+    """The original seed's stat.json rows binned on the grid, with the trainer log's wall clock of each
+    round (its log line k is written by the same training round as stat.json's row k)."""
+    stat = json.loads((run.folder / "stat.json").read_text())
+    interval, budget = (
+        run.settings.log_interval(run.environment_set),
+        run.settings.budget(run.environment_set),
+    )
+    bins = [grid_step(step, interval, budget) for step in stat["timestep"]]
+    returns = {}
+    for body in get_set(run.environment_set).train:
+        values: dict[int, list[float]] = {}
+        for step, value in zip(bins, stat[f"{body}_episode_reward"], strict=True):
+            values.setdefault(step, []).append(value)
+        returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
+    rounds = [float(t) for t in re.findall(r"\[harness\] t=\s*([\d.]+)s round=", run.log())]
+    seconds = dict(zip(bins, rounds, strict=False))
+    return SeedCurves(returns, seconds)
+
+
+def original_surplus(run: OriginalRun) -> float | None:
+    """Environment steps the seed's trainer took (every body, every step of each lock-step round) per step
+    it counted toward its budget (one update each): above 1 by the transitions it stores uncounted."""
+    match = re.search(r"totals: env_steps=(\d+) .*?updates=(\d+)", run.log())
+    return int(match.group(1)) / int(match.group(2)) if match and int(match.group(2)) else None
+
+
+def original_wall(run: OriginalRun) -> float | None:
+    """Seconds the seed's trainer ran, as its log reports them."""
+    match = re.search(r"stopped after ([\d.]+)s wall", run.log())
+    return float(match.group(1)) if match else None
+
+
+def original_throughput(run: OriginalRun) -> tuple[float, float] | None:
+    """Environment steps/s and updates/s of the seed's training window, as its trainer log reports them."""
+    match = re.search(r"([\d.]+) env steps/s, ([\d.]+) updates/s overall", run.log())
+    return (float(match.group(1)), float(match.group(2))) if match else None
+
+
+def ours_curves(
+    rows: Sequence[Mapping[str, float]], settings: Settings, environment_set: str, wall: float | None
+) -> list[SeedCurves]:
+    """Each seed's metrics rows binned on the grid by the steps counted so far (as the original's rounds
+    are), rows past the counted budget left out; wall clock from the rows' steps/s, the compile and
+    start-up time (the run's wall clock less its training windows) added, at each bin's last row."""
+    interval, budget = settings.log_interval(environment_set), settings.budget(environment_set)
+    curves = []
+    for seed in dict.fromkeys(int(row["seed"]) for row in rows):
+        mine = [row for row in rows if int(row["seed"]) == seed]
+        stored = np.diff([0.0] + [row["env_steps"] for row in mine])
+        windows = np.cumsum(
+            [steps / row["steps_per_second"] for steps, row in zip(stored, mine, strict=True)]
+        )
+        startup = (wall - windows[-1]) if wall is not None else 0.0
+        kept = [(row, t) for row, t in zip(mine, windows, strict=True) if row["counted_steps"] <= budget]
+        bins = [grid_step(row["counted_steps"], interval, budget) for row, _ in kept]
+        returns = {}
+        for body in get_set(environment_set).train:
+            values: dict[int, list[float]] = {}
+            for step, (row, _) in zip(bins, kept, strict=True):
+                if math.isfinite(row[f"return/{body}"]):
+                    values.setdefault(step, []).append(row[f"return/{body}"])
+            returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
+        seconds = {step: startup + float(t) for step, (_, t) in zip(bins, kept, strict=True)}
+        curves.append(SeedCurves(returns, seconds))
+    return curves
+
+
+def ours_surplus(rows: Sequence[Mapping[str, float]]) -> list[float]:
+    """Per seed, the environment steps swat_jax stored per step it counted, at its last row."""
+    last = {int(row["seed"]): row for row in rows}
+    return [row["env_steps"] / max(row["counted_steps"], 1) for row in last.values()]
+
+
+def curve_points(environment_set: str, sides: Mapping[str, Sequence[SeedCurves]]) -> list[CurvePoint]:
+    """The plotted points: a panel for the mean over bodies and one per body, a line per implementation."""
+    label = get_set(environment_set).description or environment_set
+    points = []
+    for implementation, curves in sides.items():
+        points += summarise(
+            f"{label}: mean over bodies", implementation, [c.mean_over_bodies() for c in curves]
+        )
+    for body in get_set(environment_set).train:
+        for implementation, curves in sides.items():
+            points += summarise(f"{label}: {body}", implementation, [c.returns[body] for c in curves])
+    return points

@@ -1,0 +1,291 @@
+"""The two sides' runs at one scale: swat_jax's paper-preset run of every seed, and the original trainer's
+seeds, each in its own process with its own virtual environment (``--original-tools``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from experiments.paper import (
+    GridError,
+    GridInterrupted,
+    RunSpec,
+    add_timing,
+)
+from swat_jax.convert import SET_FOLDERS
+from swat_jax.morphology import get_set
+
+ORIGINAL = "original (PyTorch)"
+OURS = "swat_jax (paper preset)"
+ORIGINAL_SET_FLAGS: dict[str, tuple[str, ...]] = {
+    **{name: ("--custom_xml", f"environments/{folder}") for folder, name in SET_FOLDERS.items()},
+    "animal_walkers": ("--morphologies", "nervenet"),
+}
+"""How the original's main.py is told each set's train bodies: its folder of XMLs, or (Animal-Walkers,
+which has no folder) the name its XML files share."""
+CHUNK = 100
+"""Steps per body of the paper preset's collection chunk (the original trains after each lock-step round)."""
+SURPLUS_ALLOWANCE: dict[str, float] = {"hopper": 1.75, "walker": 1.95}
+"""Environment steps swat_jax stores per step it counts, with room to spare, by set (else 2): its budget in
+stored steps is the counted budget times this, so that every seed counts the whole budget. In lock-step
+rounds both implementations store more steps than they count; the original's trainers stored 1.37-1.56x
+(Hopper++) and 1.59-1.76x (Walker++) at the small scale."""
+ORIGINAL_WORK = Path(os.environ.get("ORIG_SWAT_DIR", "/tmp/swat-original"))
+"""Where the original's tools copy its tree and where its main.py writes ``results/<expID>/``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """What both implementations train with: the same sizes, hyperparameters and budget."""
+
+    name: str
+    seeds: int
+    steps: Mapping[str, int]
+    """Environment steps per seed, summed over the set's bodies, by set."""
+    width: int = 128
+    heads: int = 2
+    layers: int = 3
+    feedforward: int = 256
+    random_steps: int = 10_000
+    """Steps per body with uniform random actions (the original's start_timesteps)."""
+    learning_rate: float = 1e-4
+    batch_size: int = 100
+    capacity: int = 500_000
+    """Replay rows per body (the original's rb_per_env)."""
+    log_iterations: int = 5
+    """Chunks of 100 steps per body between two points of the curves."""
+    final_fraction: float = 0.2
+    """The final return of a seed is its mean over the points in this last fraction of the budget."""
+
+    def log_interval(self, environment_set: str) -> int:
+        """Environment steps (all bodies) between two points of ``environment_set``'s curves."""
+        return len(get_set(environment_set).train) * CHUNK * self.log_iterations
+
+    def stored_budget(self, environment_set: str) -> int:
+        """swat_jax's ``--steps`` on ``environment_set``: the counted budget times its surplus allowance,
+        rounded up to whole collection chunks of every body."""
+        chunk = len(get_set(environment_set).train) * CHUNK
+        allowance = SURPLUS_ALLOWANCE.get(environment_set, 2.0)
+        return math.ceil(self.budget(environment_set) * allowance / chunk) * chunk
+
+    def budget(self, environment_set: str) -> int:
+        """The step budget on ``environment_set`` in the steps the original counts (the curves' x axis);
+        GridError if it has none or it is off the curves' grid."""
+        if environment_set not in self.steps:
+            raise GridError(f"scale {self.name} has no budget for {environment_set}; give --steps")
+        steps, interval = self.steps[environment_set], self.log_interval(environment_set)
+        if steps % interval:
+            raise GridError(
+                f"--steps {steps} on {environment_set}: must be a multiple of {interval} (its "
+                f"{len(get_set(environment_set).train)} bodies x {CHUNK} steps x {self.log_iterations} chunks "
+                "between curve points)"
+            )
+        return steps
+
+
+SETTINGS = {
+    "micro": Settings(
+        name="micro",
+        seeds=2,
+        steps={"hopper": 600, "walker": 800},
+        width=8,
+        layers=1,
+        feedforward=16,
+        random_steps=100,
+        capacity=1_000,
+        log_iterations=1,
+    ),
+    "small": Settings(
+        name="small",
+        seeds=4,
+        steps={"hopper": 24_000, "walker": 30_000},
+        width=32,
+        layers=1,
+        feedforward=64,
+        random_steps=1_000,
+        learning_rate=1e-3,
+        capacity=50_000,
+    ),
+    "paper": Settings(
+        name="paper",
+        seeds=5,
+        steps={name: 10_000_000 for name in ORIGINAL_SET_FLAGS},
+        log_iterations=100,
+    ),
+}
+"""``micro`` is a smoke test of the whole pipeline (a few minutes); ``small`` fits Hopper++ and Walker++, both implementations, into about 80 minutes of 2 CPU cores;
+``paper`` is the paper's sizes and budget (days of the original on a CPU)."""
+
+
+# The two sides' runs
+
+
+def ours(out: Path, settings: Settings, environment_set: str) -> RunSpec:
+    """swat_jax's paper-preset run of every seed in one program: lock-step rounds, so it stores more steps
+    than it counts; it runs for :meth:`Settings.stored_budget` steps and logs a row (with the steps
+    counted so far) after every chunk, for the curves to be binned by counted steps."""
+    chunk = len(get_set(environment_set).train) * CHUNK
+    flags = (
+        f"--env {environment_set} --algo swat --preset paper --seeds {settings.seeds} "
+        f"--steps {settings.stored_budget(environment_set)} --width {settings.width} --heads {settings.heads} "
+        f"--layers {settings.layers} --feedforward {settings.feedforward} "
+        f"--iteration.random-steps {settings.random_steps} --iteration.capacity {settings.capacity} "
+        f"--td3.learning-rate {settings.learning_rate} --td3.batch-size {settings.batch_size} "
+        f"--log-interval {chunk} --checkpoint-interval {settings.log_interval(environment_set) * 4}"
+    )
+    return RunSpec(out / "runs" / f"{environment_set}-swat_jax", tuple(flags.split()))
+
+
+@dataclasses.dataclass(frozen=True)
+class OriginalRun:
+    """One seed of the original trainer on one set."""
+
+    out: Path
+    settings: Settings
+    environment_set: str
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.environment_set}-seed{self.seed}"
+
+    @property
+    def folder(self) -> Path:
+        """Where its stat.json, args.txt and log are kept in OUT."""
+        return self.out / "original" / self.name
+
+    @property
+    def experiment_id(self) -> str:
+        """The original's --expID: unique per OUT folder, so two comparisons never share a results folder."""
+        digest = hashlib.sha1(str(self.out.resolve()).encode()).hexdigest()[:8]
+        return f"swat_jax_against_{digest}_{self.name}"
+
+    def flags(self) -> list[str]:
+        """The original main.py's flags for these settings."""
+        s = self.settings
+        if self.environment_set not in ORIGINAL_SET_FLAGS:
+            raise GridError(
+                f"the original code has no folder for {self.environment_set}; sets it can train: "
+                f"{', '.join(ORIGINAL_SET_FLAGS)}"
+            )
+        return [
+            *ORIGINAL_SET_FLAGS[self.environment_set],
+            "--actor_type", "swat", "--critic_type", "swat", "--seed", str(self.seed),
+            "--expID", self.experiment_id, "--max_timesteps", str(s.budget(self.environment_set)),
+            "--start_timesteps", str(s.random_steps), "--lr", str(s.learning_rate),
+            "--batch_size", str(s.batch_size), "--rb_per_env", str(s.capacity),
+            "--attention_embedding_size", str(s.width), "--attention_heads", str(s.heads),
+            "--attention_layers", str(s.layers), "--attention_hidden_size", str(s.feedforward),
+        ]  # fmt: skip
+
+    def command(self, python: Path, tools: Path, timeout: float) -> list[str]:
+        return [str(python), str(tools / "run_trainer.py"), str(timeout), *self.flags()]
+
+    def finished(self) -> bool:
+        return (self.folder / "stat.json").is_file()
+
+    def log(self) -> str:
+        """The trainer's log, copied next to its ``stat.json``."""
+        return (self.folder / "trainer.log").read_text()
+
+
+def original_runs(out: Path, settings: Settings, environment_set: str) -> list[OriginalRun]:
+    return [OriginalRun(out, settings, environment_set, seed) for seed in range(settings.seeds)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Original:
+    """Where the original trainer runs: its venv's python and the folder of its tools."""
+
+    python: Path
+    tools: Path
+    parallel: int
+    timeout: float
+
+    def missing(self) -> str | None:
+        """Why it cannot run here, or None."""
+        if not self.python.is_file():
+            return f"no original-code venv at {self.python} (give --original-python)"
+        if self.tools == Path():
+            return "no folder of the original's tools: give --original-tools DIR or set $ORIGINAL_TOOLS"
+        if not (self.tools / "run_trainer.py").is_file():
+            return f"no run_trainer.py in {self.tools} (give --original-tools)"
+        return None
+
+
+def train_original(runs: Sequence[OriginalRun], original: Original, out: Path) -> None:
+    """Run every unfinished seed, ``original.parallel`` at a time, each with one torch thread; copy its
+    stat.json, args.txt and log into OUT; add the wall clock to ``timings.json``."""
+    pending = [run for run in runs if not run.finished()]
+    for run in runs:
+        if run.finished():
+            print(f"original {run.name}: done, kept", file=sys.stderr)
+    if not pending:
+        return
+    prepare_tree(original)
+    start, running = time.perf_counter(), []
+    try:
+        while pending or running:
+            while pending and len(running) < original.parallel:
+                run = pending.pop(0)
+                running.append((run, _start_original(run, original), time.perf_counter()))
+            time.sleep(1.0)
+            for entry in list(running):
+                run, process, began = entry
+                if process.poll() is None:
+                    continue
+                running.remove(entry)
+                _collect_original(run, process.returncode, time.perf_counter() - began)
+    except KeyboardInterrupt:
+        for _, process, _ in running:
+            process.terminate()
+        raise GridInterrupted(
+            "stopped; the finished seeds are kept, run the same command again to go on"
+        ) from None
+    finally:
+        add_timing(out, f"original-{runs[0].environment_set}", time.perf_counter() - start)
+
+
+def prepare_tree(original: Original) -> None:
+    """Have the original's tools copy its tree into ORIGINAL_WORK once, before seeds start side by side (each
+    would copy it otherwise, and a seed started during another's copy finds it half-written)."""
+    setup = f"import sys; sys.path.insert(0, {str(original.tools)!r}); import common; common.extract()"
+    environment = {**os.environ, "ORIG_SWAT_DIR": str(ORIGINAL_WORK)}
+    subprocess.run([str(original.python), "-c", setup], env=environment, cwd="/tmp", check=True)
+
+
+def _start_original(run: OriginalRun, original: Original) -> subprocess.Popen:
+    for stale in (ORIGINAL_WORK / "src" / "results", ORIGINAL_WORK / "src" / "buffers"):
+        shutil.rmtree(stale / run.experiment_id, ignore_errors=True)
+    run.folder.mkdir(parents=True, exist_ok=True)
+    command = run.command(original.python, original.tools, original.timeout)
+    print(f"original {run.name}: {shlex.join(command)}", file=sys.stderr)
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "ORIG_SWAT_DIR": str(ORIGINAL_WORK)}
+    log = (run.folder / "trainer.log").open("w")
+    return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=environment, cwd="/tmp")
+
+
+def _collect_original(run: OriginalRun, status: int, seconds: float) -> None:
+    results = ORIGINAL_WORK / "src" / "results" / run.experiment_id
+    if status != 0 or not (results / "stat.json").is_file():
+        raise GridError(
+            f"original {run.name} exited with status {status}; its log: {run.folder / 'trainer.log'}"
+        )
+    if "training finished" not in run.log():
+        raise GridError(
+            f"original {run.name} stopped before its budget (after {seconds:.0f} s); raise --original-timeout "
+            f"(its log: {run.folder / 'trainer.log'})"
+        )
+    shutil.copy(results / "args.txt", run.folder / "args.txt")
+    shutil.copy(results / "stat.json", run.folder / "stat.json")
+    print(f"original {run.name}: finished in {seconds / 60:.1f} min", file=sys.stderr)
