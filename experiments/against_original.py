@@ -276,7 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the folder of runs, figures and the report; default experiments/results/against_original",
     )
-    parser.add_argument("--dry-run", action="store_true", help="print both sides' commands and stop")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="write swat_jax's config file, print both sides' commands and stop",
+    )
     parser.add_argument(
         "--speed", action="store_true",
         help="measure throughput at the paper's sizes (both sides, --sets, default hopper walker animal_walkers) "
@@ -328,6 +332,7 @@ def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Ori
         run = ours(out, settings, environment_set)
         steps = progress(run)
         state = "new" if steps is None else f"resumes at {steps:,} steps"
+        run.write_config()
         print(f"python {shlex.join(run.command()[1:])}  # {state}")
 
 

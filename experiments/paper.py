@@ -35,6 +35,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from experiments.machine import cpu_model, host_cores, software_versions
 from swat_jax.cli import strict_json
@@ -43,8 +44,16 @@ from swat_jax.morphology import get_set
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.plot import plot_curves
 from swat_jax.runs.checkpoint import Checkpoints
-from swat_jax.runs.config import CONFIG_FILE, TrainConfig, load_config
-from swat_jax.train import INTERRUPTED_STATUS, parse_command
+from swat_jax.runs.config import (
+    CONFIG_FILE,
+    PRESETS,
+    NetworkSizes,
+    TrainConfig,
+    config_flags,
+    flag_values,
+    load_config,
+)
+from swat_jax.train import INTERRUPTED_STATUS
 
 MAIN_ALGORITHMS = ("swat", "amorpheus", "smp")
 ABLATIONS = ("swat", "swat_no_re", "swat_no_pe", "swat_no_pe_re")
@@ -66,18 +75,30 @@ class Scale:
     """Environment steps of a fine-tuning run on the held-out bodies (figure5)."""
     table_episodes: int
     """Deterministic episodes per body and seed of the zero-shot tables."""
-    flags: str
-    """Every other ``swat_jax.train`` flag: preset, network sizes, iteration, TD3, logging."""
+    base: TrainConfig
+    """Every other setting of the runs: preset, network sizes, iteration, TD3, logging."""
     sets: dict[str, tuple[str, ...]]
     """The sets each command runs on unless ``--sets`` names others."""
-    smp_flags: str = ""
-    """More flags for SMP runs: its sizes, which the transformer's --width, --layers and --feedforward do not set."""
+    smp_network: NetworkSizes | None = None
+    """SMP's network sizes (its hidden layers), where the transformer's do not size it; None: the base's."""
 
-    def run_flags(self, algorithm: str) -> tuple[str, ...]:
-        """The scale's flags for a run of ``algorithm``."""
-        return (*self.flags.split(), *(self.smp_flags.split() if algorithm == "smp" else ()))
+    def run(self, run_dir: Path, environment_set: str, algorithm: str, **fields: Any) -> RunSpec:
+        """The run of ``algorithm`` on ``environment_set`` in ``run_dir`` at this scale, with ``fields``."""
+        network = self.smp_network if algorithm == "smp" and self.smp_network else self.base.network
+        config = dataclasses.replace(
+            self.base,
+            env=environment_set,
+            algo=algorithm,
+            seeds=self.seeds,
+            network=network,
+            run_dir=str(run_dir),
+            **{"steps": self.steps, **fields},
+        )
+        return RunSpec(config)
 
 
+FAST = PRESETS["fast"]
+TINY_NETWORK = NetworkSizes(width=32, layers=1, feedforward=64)
 SCALES = {
     "paper": Scale(
         name="paper",
@@ -85,7 +106,7 @@ SCALES = {
         steps=10_000_000,
         finetune_steps=1_000_000,
         table_episodes=100,
-        flags="--preset paper --eval-interval 200000 --log-interval 50000",
+        base=dataclasses.replace(PRESETS["paper"], eval_interval=200_000, log_interval=50_000),
         sets={
             "figure4": ("hopper", "walker", "humanoid", "cheetah", "wh", "cwhh", "cwh", "animal_walkers"),
             "figure5": ("humanoid", "cwhh"),
@@ -99,16 +120,24 @@ SCALES = {
         steps=80_000,
         finetune_steps=40_000,
         table_episodes=10,
-        flags="--preset fast --width 32 --layers 1 --feedforward 64 --copies 8 --iteration.chunk 25 "
-        "--iteration.updates 40 --iteration.random-steps 1000 --iteration.capacity 50000 "
-        "--td3.batch-size 100 --td3.learning-rate 0.001 --log-interval 4000 --checkpoint-interval 40000",
+        base=dataclasses.replace(
+            FAST,
+            envs=dataclasses.replace(FAST.envs, copies=8),
+            network=TINY_NETWORK,
+            iteration=dataclasses.replace(
+                FAST.iteration, chunk=25, updates=40, random_steps=1000, capacity=50_000
+            ),
+            td3=dataclasses.replace(FAST.td3, batch_size=100, learning_rate=0.001),
+            log_interval=4000,
+            checkpoint_interval=40_000,
+        ),
         sets={
             "figure4": ("hopper", "walker"),
             "figure5": ("walker",),
             "figure6": ("hopper",),
             "tables": ("walker",),
         },
-        smp_flags="--smp-hidden 32",
+        smp_network=dataclasses.replace(TINY_NETWORK, smp_hidden=32),
     ),
 }
 """The scales of ``--scale``."""
@@ -127,23 +156,33 @@ class GridInterrupted(GridError):
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
-    """One training run of the grid: its directory and its ``swat_jax.train`` flags (without --run-dir)."""
+    """One training run of the grid: its TrainConfig, written as JSON beside its run directory and trained
+    with ``python -m swat_jax.train --config FILE``."""
 
-    run_dir: Path
-    flags: tuple[str, ...]
+    config: TrainConfig
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.config.run_dir)
 
     @property
     def name(self) -> str:
         return self.run_dir.name
 
-    def command(self) -> list[str]:
-        """The command that starts this run."""
-        return [sys.executable, "-m", "swat_jax.train", *self.flags, "--run-dir", str(self.run_dir)]
+    @property
+    def config_file(self) -> Path:
+        """``OUT/runs/<name>.json``, beside the run directory."""
+        return self.run_dir.parent / f"{self.name}.json"
 
-    def config(self) -> TrainConfig:
-        """The TrainConfig this run trains with."""
-        command, _ = parse_command([*self.flags, "--run-dir", str(self.run_dir)])
-        return command.config()
+    def write_config(self) -> Path:
+        """Write :attr:`config_file` (the grid's plan, read by the training command)."""
+        self.config_file.parent.mkdir(parents=True, exist_ok=True)
+        self.config_file.write_text(self.config.to_json())
+        return self.config_file
+
+    def command(self) -> list[str]:
+        """The command that starts this run (from :attr:`config_file`)."""
+        return [sys.executable, "-m", "swat_jax.train", "--config", str(self.config_file)]
 
 
 def set_label(environment_set: str) -> str:
@@ -153,20 +192,21 @@ def set_label(environment_set: str) -> str:
 
 def pretraining(out: Path, scale: Scale, environment_set: str, algorithm: str) -> RunSpec:
     """``algorithm`` trained on the train bodies of ``environment_set`` (figures 4 and 6, pretraining, tables)."""
-    flags = f"--env {environment_set} --algo {algorithm} --seeds {scale.seeds} --steps {scale.steps}"
-    return RunSpec(
-        out / "runs" / f"{set_label(environment_set)}-{algorithm}",
-        (*flags.split(), *scale.run_flags(algorithm)),
-    )
+    return scale.run(out / "runs" / f"{set_label(environment_set)}-{algorithm}", environment_set, algorithm)
 
 
 def fine_tuning(out: Path, scale: Scale, environment_set: str, algorithm: str, transfer: bool) -> RunSpec:
     """``algorithm`` trained on the held-out bodies, from its pretrained run (``transfer``) or from scratch."""
     source = pretraining(out, scale, environment_set, algorithm)
-    start = ("--init-from", str(source.run_dir)) if transfer else ()
-    flags = f"--env {environment_set} --split test --algo {algorithm} --seeds {scale.seeds} --steps {scale.finetune_steps}"
     name = f"{set_label(environment_set)}-test-{algorithm}-{'transfer' if transfer else 'scratch'}"
-    return RunSpec(out / "runs" / name, (*flags.split(), *start, *scale.run_flags(algorithm)))
+    return scale.run(
+        out / "runs" / name,
+        environment_set,
+        algorithm,
+        split="test",
+        steps=scale.finetune_steps,
+        init_from=str(source.run_dir) if transfer else "",
+    )
 
 
 def with_test_bodies(sets: Sequence[str], command: str) -> list[str]:
@@ -205,7 +245,7 @@ def grid(
 def plotted_runs(command: str, runs: Sequence[RunSpec]) -> list[RunSpec]:
     """The runs drawn in ``command``'s figure: figure5 draws the fine-tuning runs only."""
     if command == "figure5":
-        return [run for run in runs if "--split" in run.flags]
+        return [run for run in runs if run.config.split == "test"]
     return list(runs)
 
 
@@ -220,12 +260,11 @@ def progress(run: RunSpec) -> int | None:
     """
     if not (run.run_dir / CONFIG_FILE).is_file():
         return None
-    saved, expected = load_config(run.run_dir / CONFIG_FILE), run.config()
+    saved, expected = (flag_values(config) for config in (load_config(run.run_dir / CONFIG_FILE), run.config))
     differences = [
-        f"{field.name} {getattr(saved, field.name)!r} (wanted {getattr(expected, field.name)!r})"
-        for field in dataclasses.fields(TrainConfig)
-        if field.name not in ("steps", "run_dir")
-        and getattr(saved, field.name) != getattr(expected, field.name)
+        f"{flag} {saved[flag]!r} (wanted {value!r})"
+        for flag, value in expected.items()
+        if flag not in ("--steps", "--run-dir") and saved[flag] != value
     ]
     if differences:
         raise GridError(
@@ -286,7 +325,7 @@ def exit_status(work: Callable[[], Path | None]) -> int:
 def train_all(runs: Sequence[RunSpec], out: Path) -> None:
     """Train every run that has not reached its budget, one after another; record their wall clock."""
     for index, run in enumerate(runs, start=1):
-        steps, budget = progress(run), run.config().steps
+        steps, budget = progress(run), run.config.steps
         label = f"[{index}/{len(runs)}] {run.name}"
         if steps is not None and steps >= budget:
             print(f"{label}: done ({steps:,} steps), kept", file=sys.stderr)
@@ -294,6 +333,8 @@ def train_all(runs: Sequence[RunSpec], out: Path) -> None:
         command = run.command() if steps is None else [
             sys.executable, "-m", "swat_jax.train", "--resume", str(run.run_dir), "--steps", str(budget)
         ]  # fmt: skip
+        if steps is None:
+            run.write_config()
         print(f"{label}: {'training' if steps is None else f'resuming at {steps:,} steps'}", file=sys.stderr)
         print(f"  python {shlex.join(command[1:])}", file=sys.stderr)
         start = time.perf_counter()
@@ -334,7 +375,7 @@ def draw_figure(command: str, runs: Sequence[RunSpec], out: Path, scale: Scale) 
     """Draw ``command``'s curves (and the evaluation curves when the scale evaluates during training);
     returns the report's Markdown sections."""
     run_dirs = [run.run_dir for run in plotted_runs(command, runs)]
-    metrics = ["train"] + (["eval"] if "--eval-interval" in scale.flags else [])
+    metrics = ["train"] + (["eval"] if scale.base.eval_interval else [])
     sections = []
     for metric in metrics:
         png = out / (f"{command}.png" if metric == "train" else f"{command}_eval.png")
@@ -357,7 +398,7 @@ def write_tables(runs: Sequence[RunSpec], out: Path, scale: Scale) -> list[str]:
     (``python -m swat_jax.eval --split test --markdown``); written to ``OUT/tables.md`` too."""
     by_set: dict[str, list[RunSpec]] = {}
     for run in runs:
-        by_set.setdefault(run.config().env, []).append(run)
+        by_set.setdefault(run.config.env, []).append(run)
     sections = []
     for environment_set, set_runs in by_set.items():
         command = [
@@ -387,8 +428,8 @@ def report(
         f"- Command: `python -m experiments.paper {shlex.join(argv)}`",
         f"- Date: {datetime.date.today().isoformat()}",
         f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
-        f"- Every run: {scale.seeds} seeds in one program; `{scale.flags}`"
-        + (f"; SMP runs also `{scale.smp_flags}`" if scale.smp_flags else ""),
+        f"- Every run: {scale.seeds} seeds in one program; `{shlex.join(config_flags(scale.base))}`"
+        + (f"; SMP runs `--network.smp-hidden {scale.smp_network.smp_hidden}`" if scale.smp_network else ""),
         "",
         "| run | environment steps per seed | wall clock (min, compile included) |",
         "|---|---|---|",
@@ -396,7 +437,7 @@ def report(
     for run in runs:
         seconds = timings.get(run.name)
         minutes = "-" if seconds is None else f"{seconds / 60:.1f}"
-        lines.append(f"| {run.name} | {run.config().steps:,} | {minutes} |")
+        lines.append(f"| {run.name} | {run.config.steps:,} | {minutes} |")
     path = out / f"{command}.md"
     path.write_text("\n".join([*lines, "", *sections]) + "\n")
     return path
@@ -435,7 +476,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the folder for runs, figures and reports; default experiments/results/<scale>",
     )
-    parser.add_argument("--dry-run", action="store_true", help="print the training commands and stop")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="write every run's config file (OUT/runs/<run>.json) and print the commands that train them, then stop",
+    )
     return parser
 
 
@@ -463,6 +508,7 @@ def main(argv: list[str] | None = None) -> int:
     def work() -> Path | None:
         if args.dry_run:
             for run in grid(args.command, scale, sets, algorithms, out):
+                run.write_config()
                 print("python", shlex.join(run.command()[1:]))
             return None
         return produce(args.command, scale, sets, algorithms, out, argv)

@@ -51,6 +51,7 @@ import shlex
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -62,48 +63,80 @@ from experiments.paper import GridError, RunSpec, exit_status, progress, read_ti
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
 from swat_jax.plot import new_figure, save
+from swat_jax.runs.config import PRESETS, TrainConfig
 from swat_jax.runs.metrics import read_metrics, standard_error
 
 ORIGINAL = "original (PyTorch)"
 
 
-def recipe(copies: int, chunk: int, updates: int, batch: int, *more: str) -> tuple[str, ...]:
-    """The fast preset's flags with ``copies`` per body, ``chunk`` steps per copy, ``updates`` per
-    iteration, ``batch`` per body, and ``more`` flags."""
-    sizes = ("--copies", copies, "--iteration.chunk", chunk, "--iteration.updates", updates)
-    return ("--preset", "fast", *map(str, (*sizes, "--td3.batch-size", batch)), *more)
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A swat_jax configuration of the search: a preset at the scale's sizes and hyperparameters, with these
+    changes (None: the preset's)."""
+
+    preset: str = "fast"
+    copies: int | None = None
+    """Environment copies per body."""
+    chunk: int | None = None
+    """Steps per copy per iteration."""
+    updates: int | None = None
+    """Updates per iteration."""
+    batch: int | None = None
+    """Batch per body."""
+    learning_rate: float | None = None
+    noise: tuple[float, float] | None = None
+    """Each copy's exploration noise std, spread evenly from the first to the second."""
+    c51: bool = False
+    """A distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
+
+    def config(self, scaled: TrainConfig) -> TrainConfig:
+        """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
+        iteration = dataclasses.replace(scaled.iteration, **_given(chunk=self.chunk, updates=self.updates))
+        if self.noise is not None:
+            iteration = dataclasses.replace(
+                iteration, exploration_noise=self.noise[0], exploration_noise_max=self.noise[1]
+            )
+        td3 = dataclasses.replace(
+            scaled.td3, **_given(batch_size=self.batch, learning_rate=self.learning_rate)
+        )
+        if self.c51:
+            td3 = dataclasses.replace(td3, atoms=51, value_min=-100.0, value_max=400.0)
+        envs = dataclasses.replace(scaled.envs, **_given(copies=self.copies))
+        return dataclasses.replace(scaled, envs=envs, iteration=iteration, td3=td3)
 
 
-def noise(low: float, high: float) -> tuple[str, ...]:
-    """Flags of per-copy exploration noise: std spread evenly from ``low`` (the first copy) to ``high``."""
-    return ("--iteration.exploration-noise", str(low), "--iteration.exploration-noise-max", str(high))
+def _given(**values: Any) -> dict[str, Any]:
+    """The ``values`` that are not None."""
+    return {name: value for name, value in values.items() if value is not None}
 
 
-C51 = ("--td3.atoms", "51", "--td3.value-min", "-100", "--td3.value-max", "400")
-"""Flags of a distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
+def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Candidate:
+    """The fast preset with ``copies`` per body, ``chunk`` steps per copy, ``updates`` per iteration and
+    ``batch`` per body, and ``more`` changes."""
+    return Candidate(copies=copies, chunk=chunk, updates=updates, batch=batch, **more)
 
 
-CANDIDATES: dict[str, tuple[str, ...]] = {
-    "paper": (),
-    "paper-2dev": (),
-    "fast": ("--preset", "fast"),
-    "fast-2dev": ("--preset", "fast"),
+CANDIDATES: dict[str, Candidate] = {
+    "paper": Candidate("paper"),
+    "paper-2dev": Candidate("paper"),
+    "fast": Candidate(),
+    "fast-2dev": Candidate(),
     "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
     "fast-c8-k16-u64-b200": recipe(8, 16, 64, 200),
     "fast-c4-k16-u64-b100": recipe(4, 16, 64, 100),
     "fast-c4-k16-u64-b100-2dev": recipe(4, 16, 64, 100),
     "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
-    "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "3e-3"),
-    "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, "--td3.learning-rate", "2e-3"),
-    "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, "--td3.learning-rate", "3e-3"),
-    "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, *noise(0.05, 0.4)),
-    "fast-n0.05-0.4-2dev": ("--preset", "fast", *noise(0.05, 0.4)),
-    "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, *C51),
-    "fast-c51-2dev": ("--preset", "fast", *C51),
+    "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, learning_rate=3e-3),
+    "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, learning_rate=2e-3),
+    "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, learning_rate=3e-3),
+    "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
+    "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
+    "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
+    "fast-c51-2dev": Candidate(c51=True),
 }
-"""swat_jax configurations by name: ``paper`` is against_original.py's run (the paper preset in lock-step
-rounds, its budget in stored steps); every other is ``--preset ...`` flags on top of the scale's sizes and
-hyperparameters (and after them, so they override them), trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
+"""swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
+rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
+with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
 ``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic;
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
@@ -175,19 +208,17 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
     program, a metrics row at least every curve interval, for ``settings``' budget (the horizon's)."""
     if name not in CANDIDATES:
         raise GridError(f"unknown candidate {name!r}; candidates: {', '.join(CANDIDATES)}")
-    devices = CPU_DEVICES.get(name, 1)
+    devices, run_dir = CPU_DEVICES.get(name, 1), out / "runs" / f"{environment_set}-{name}"
     if name.startswith("paper"):
-        base = ours(out, settings, environment_set)
-        return DeviceRun(out / "runs" / f"{environment_set}-{name}", base.flags, devices)
-    s = settings
-    flags = (
-        f"--env {environment_set} --algo swat --seeds {s.seeds} --steps {s.budget(environment_set)} "
-        f"--width {s.width} --heads {s.heads} --layers {s.layers} --feedforward {s.feedforward} "
-        f"--iteration.random-steps {s.random_steps} --iteration.capacity {s.capacity} "
-        f"--td3.learning-rate {s.learning_rate} --log-interval {s.log_interval(environment_set)} "
-        f"--checkpoint-interval {s.log_interval(environment_set) * 4}"
-    ).split()
-    return DeviceRun(out / "runs" / f"{environment_set}-{name}", (*flags, *CANDIDATES[name]), devices)
+        config = dataclasses.replace(ours(out, settings, environment_set).config, run_dir=str(run_dir))
+        return DeviceRun(config, devices)
+    interval = settings.log_interval(environment_set)
+    steps = settings.budget(environment_set)
+    candidate = CANDIDATES[name]
+    scaled = settings.config(
+        PRESETS[candidate.preset], environment_set, run_dir, steps=steps, log_interval=interval
+    )
+    return DeviceRun(candidate.config(scaled), devices)
 
 
 def candidate_curve(
@@ -277,7 +308,7 @@ def set_section(
     if original is None:
         raise GridError(
             f"no finished original runs of {environment_set} at scale {settings.name} in {original_out}/original; "
-            "run experiments/against_original.py --only original, or give --original-from"
+            "run python -m experiments.against_original --only original, or give --original-from"
         )
     candidates = [
         c for name in names if (c := candidate_curve(out, settings, environment_set, name, timings, horizon))
@@ -398,7 +429,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="train swat_jax's candidates for this many times the original's budget; the time to R counts "
         "past the budget, the final return stays the budget's (default 1)",
     )  # fmt: skip
-    parser.add_argument("--dry-run", action="store_true", help="print the commands of the runs and stop")
+    parser.add_argument(
+        "--dry-run", action="store_true", help="write the runs' config files, print their commands and stop"
+    )
     parser.add_argument(
         "--report-only", action="store_true",
         help="train nothing: write the report from the runs that exist (a candidate without one is left out)",
@@ -432,6 +465,7 @@ def main(argv: list[str] | None = None) -> int:
             for run in runs:
                 steps = progress(run)
                 state = "new" if steps is None else f"resumes at {steps:,} steps"
+                run.write_config()
                 print(f"{shlex.join(run.command())}  # {state}")
             return None
         if not args.report_only:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -32,6 +33,7 @@ from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.paper import SCALES, RunSpec, exit_status, read_timings, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.eval import EvalOptions, evaluate_run
+from swat_jax.runs.config import config_flags
 from swat_jax.runs.metrics import standard_error
 
 ARMS = ("nominal", "variants")
@@ -63,14 +65,14 @@ class Options:
 def runs(options: Options) -> dict[str, RunSpec]:
     """The two training runs of the experiment."""
     scale = SCALES["tiny"]
-    common = (
-        "--env", options.env, "--algo", "swat", "--seeds", str(scale.seeds), "--steps", str(scale.steps),
-        *scale.run_flags("swat"),
-    )  # fmt: skip
-    with_variants = ("--variants", str(options.train_variants), "--variation", str(options.variation))
+    variants = dataclasses.replace(
+        scale.base.envs, variants=options.train_variants, variation=options.variation
+    )
     return {
-        "nominal": RunSpec(options.out / "runs" / f"{options.env}-nominal", common),
-        "variants": RunSpec(options.out / "runs" / f"{options.env}-variants", (*common, *with_variants)),
+        "nominal": scale.run(options.out / "runs" / f"{options.env}-nominal", options.env, "swat"),
+        "variants": scale.run(
+            options.out / "runs" / f"{options.env}-variants", options.env, "swat", envs=variants
+        ),
     }
 
 
@@ -170,7 +172,7 @@ def produce(options: Options) -> Path | None:
     plan = runs(options)
     if options.dry_run:
         for arm, run in plan.items():
-            print(f"{arm}: python -m swat_jax.train {' '.join(run.flags)} --run-dir {run.run_dir}")
+            print(f"{arm}: python -m swat_jax.train {shlex.join(config_flags(run.config))}")
         for label, evaluation in conditions(options).items():
             print(f"evaluate each on {label}: {evaluation}")
         return None

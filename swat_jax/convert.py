@@ -34,7 +34,7 @@ from swat_jax.compilation_cache import enable_caches
 from swat_jax.networks import NetworkConfig
 from swat_jax.networks.original_weights import StateDict, actor_params, critic_params
 from swat_jax.runs.checkpoint import Checkpoints
-from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig
+from swat_jax.runs.config import PRESETS, ConfigError, NetworkSizes, TrainConfig
 from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.trained import network_items
 from swat_jax.train import prepare_run_dir
@@ -184,7 +184,12 @@ def train_config(model: OriginalModel, *, env: str | None, run_dir: str) -> Trai
     env = env or _environment_set(args, where)
     try:
         return dataclasses.replace(
-            PRESETS["paper"], env=env, algo=algo, seed=int(args.get("seed", 0)), run_dir=run_dir, **sizes
+            PRESETS["paper"],
+            env=env,
+            algo=algo,
+            seed=int(args.get("seed", 0)),
+            run_dir=run_dir,
+            network=NetworkSizes(**sizes),
         )
     except ConfigError as error:
         raise ConversionError(f"{where}: {error}") from error
@@ -215,7 +220,7 @@ def network_params(model: OriginalModel, network: NetworkConfig) -> dict[str, An
 def convert(model: OriginalModel, config: TrainConfig, *, overwrite: bool = False) -> Path:
     """Write ``config``'s run directory with one checkpoint holding ``model``'s networks; returns its path."""
     experiment = Experiment.build(config)
-    converted = network_params(model, config.network())
+    converted = network_params(model, config.network_config())
     state = experiment.init_state()
     learner = state.learner.replace(
         **{

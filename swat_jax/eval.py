@@ -206,7 +206,7 @@ class EvalOptions:
     variation: float = 0.2
     """With --variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]."""
     variant_seed: int = 1
-    """With --variants: seed of the draw; a training run with --variants drew its own with --variant-seed (default 0), so the default 1 gives held-out variants."""
+    """With --variants: seed of the draw; a training run with --envs.variants drew its own with --envs.variant-seed (default 0), so the default 1 gives held-out variants."""
 
     def variant_draw(self) -> Variation:
         """How the evaluated variants are drawn (--variation, --variant-seed); ValueError for a bad spread."""

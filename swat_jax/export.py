@@ -176,7 +176,7 @@ def export_policy(
             f"--max-limbs {max_limbs} is below the {largest.num_limbs} limbs of {largest.name}, a body of "
             f"{config.env}; use at least {largest.num_limbs}"
         )
-    network = config.network()
+    network = config.network_config()
     if network.traversals and max_limbs > network.max_traversal_positions:
         raise ExportError(
             f"--max-limbs {max_limbs} is more than the {network.max_traversal_positions} traversal positions "
@@ -202,8 +202,8 @@ def export_policy(
         seed=policy.seeds[seed_index],
         train_bodies=[body.name for body in bodies[: len(train)]],
         test_bodies=[body.name for body in bodies[len(train) :]],
-        reference_inorder=config.reference_inorder,
-        torso_relative_x=config.torso_relative_x,
+        reference_inorder=config.network.reference_inorder,
+        torso_relative_x=config.envs.torso_relative_x,
         network=dataclasses.asdict(network),
         platforms=list(platforms),
     )

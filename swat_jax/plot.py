@@ -253,7 +253,7 @@ def require_embedding(config: TrainConfig, run_dir: Path, module: str) -> None:
     """ValueError, naming the algorithm, if the run's network has no embedding ``module`` (a key of
     :data:`EMBEDDINGS`): SMP has neither, AMORPHEUS and the ablations lack theirs."""
     setting, description, algorithms = EMBEDDINGS[module]
-    network = config.network()
+    network = config.network_config()
     if network.architecture != "swat" or not getattr(network, setting):
         raise ValueError(
             f"{run_dir} trained {config.algo}, whose network has no {description}; plot a {algorithms} run"
@@ -269,7 +269,7 @@ def embedding_params(policy: TrainedPolicy, seed_index: int, module: str) -> dic
 def positional_embeddings(policy: TrainedPolicy, seed_index: int, structure: StructureBatch) -> np.ndarray:
     """[total limbs, width] each real limb's positional embedding (its traversal tables' rows
     concatenated), the bodies' limbs one after another."""
-    module = TraversalEmbedding(policy.config.network())
+    module = TraversalEmbedding(policy.config.network_config())
     variables = embedding_params(policy, seed_index, "traversal_embedding")
     embeddings = jax.vmap(lambda positions: module.apply(variables, positions))(structure.traversal_positions)
     return np.asarray(embeddings)[structure.limb_mask]
@@ -360,7 +360,7 @@ def plot_embeddings(run_dir: str | Path, output: str | Path, *, seed_index: int 
 def relation_bias(policy: TrainedPolicy, seed_index: int, structure: StructureBatch) -> np.ndarray:
     """[heads, n, n] the bias g(R) that each head adds to the attention logits between the limbs of the one
     body of ``structure`` (unpadded)."""
-    module = RelationalEmbedding(policy.config.network())
+    module = RelationalEmbedding(policy.config.network_config())
     variables = embedding_params(policy, seed_index, "relational_embedding")
     return np.asarray(module.apply(variables, structure.relations[0]))
 

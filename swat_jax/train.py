@@ -39,7 +39,7 @@ from swat_jax.cli import ERROR_STATUS
 from swat_jax.compilation_cache import CacheSettingError, enable_caches, program_cache_limit
 from swat_jax.networks import param_count
 from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
-from swat_jax.runs.config import CONFIG_FILE, PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.config import CONFIG_FILE, PRESETS, ConfigError, TrainConfig, flag_values, load_config
 from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.metrics import MetricsWindow, MetricsWriter, evaluation_columns
 from swat_jax.runs.trained import network_items
@@ -50,18 +50,21 @@ from swat_jax.td3.sharding import fetch
 
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 """Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
-RESUMABLE_FIELDS = ("steps", "run_dir")
-"""Fields ``--resume`` may change; every other field is the run's own."""
+RESUMABLE_FLAGS = ("--steps", "--run-dir")
+"""Flags ``--resume`` may change; every other value is the run's own."""
 
 
 @dataclasses.dataclass(frozen=True)
 class TrainCommand(TrainConfig):
     """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022).
 
-    Flags override the preset's values (--preset paper|fast); --help after --preset shows that preset's
-    defaults. Metrics, config and checkpoints go to the run directory.
+    Flags override the preset's values (--preset paper|intended|fast), or those of a config file (--config
+    FILE: a run's config.json, or one a grid wrote); --help after either shows those defaults. Metrics,
+    config and checkpoints go to the run directory.
     """
 
+    config: str = ""
+    """Take every value this config.json file gives (a run's, or one written with TrainConfig.to_json) as the defaults that flags override, instead of a preset's."""
     resume: str = ""
     """Continue the run in this directory from its newest checkpoint (with its saved config; --steps may raise the budget)."""
     overwrite: bool = False
@@ -86,7 +89,8 @@ class TrainCommand(TrainConfig):
         elif self.distributed:
             jax.distributed.initialize()
 
-    def config(self) -> TrainConfig:
+    def train_config(self) -> TrainConfig:
+        """The run's TrainConfig: this command's values less the command's own options."""
         return TrainConfig(
             **{field.name: getattr(self, field.name) for field in dataclasses.fields(TrainConfig)}
         )
@@ -226,7 +230,7 @@ def train(
     actor_parameters = param_count(jax.eval_shape(experiment.learner.actor.init, jax.random.PRNGKey(0)))
     print(
         f"run {config.directory()}: {config.algo} ({actor_parameters:,} "
-        f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.copies} copies, "
+        f"actor parameters) on {env.num_bodies} bodies of {config.env} x {config.envs.copies} copies, "
         f"{env.max_limbs} limbs max, seeds {', '.join(map(str, config.seed_values()))} in one program"
     )
     # The original schedule updates one body at a time, at the padded limb count.
@@ -388,17 +392,33 @@ def _progress_summary(rows: list[dict[str, float]]) -> dict[str, str]:
     }
 
 
-def _preset_defaults(argv: list[str]) -> TrainCommand:
-    """The defaults of the preset named on the command line (``--preset NAME`` or ``--preset=NAME``)."""
-    name = "paper"
+def _option(argv: list[str], flag: str) -> str | None:
+    """The value ``argv`` gives ``flag`` (``FLAG VALUE`` or ``FLAG=VALUE``; the last one), or None."""
+    value = None
     for index, arg in enumerate(argv):
-        if arg == "--preset" and index + 1 < len(argv):
-            name = argv[index + 1]
-        elif arg.startswith("--preset="):
-            name = arg.split("=", 1)[1]
-    preset = PRESETS.get(name, PRESETS["paper"])
+        if arg == flag and index + 1 < len(argv):
+            value = argv[index + 1]
+        elif arg.startswith(f"{flag}="):
+            value = arg.split("=", 1)[1]
+    return value
+
+
+def _defaults(argv: list[str]) -> TrainCommand:
+    """The defaults the command line's flags override: those of ``--config FILE``, or of the preset it names
+    (``--preset NAME``; paper without one). ConfigError for both, or for a file that is not a config."""
+    config_file, preset = _option(argv, "--config"), _option(argv, "--preset")
+    if config_file is not None and preset is not None:
+        raise ConfigError(
+            f"--config {config_file} and --preset {preset} both give the defaults; give one of them"
+        )
+    base = (
+        load_config(config_file)
+        if config_file is not None
+        else PRESETS.get(preset or "paper", PRESETS["paper"])
+    )
     return TrainCommand(
-        **{field.name: getattr(preset, field.name) for field in dataclasses.fields(TrainConfig)}
+        **{field.name: getattr(base, field.name) for field in dataclasses.fields(TrainConfig)},
+        config=config_file or "",
     )
 
 
@@ -409,15 +429,20 @@ def resolve(command: TrainCommand, defaults: TrainCommand) -> TrainConfig:
         ConfigError: ``--resume`` together with options that contradict the saved config.
     """
     if not command.resume:
-        return command.config()
+        return command.train_config()
+    if command.config:
+        raise ConfigError(
+            f"--resume {command.resume} continues with the run's own config.json; drop --config"
+        )
     run_dir = Path(command.resume)
     saved = load_config(run_dir / CONFIG_FILE)
+    given, preset, own = (
+        flag_values(config) for config in (command.train_config(), defaults.train_config(), saved)
+    )
     contradicting = [
-        f"--{field.name.replace('_', '-')} {getattr(command, field.name)!r} (run has {getattr(saved, field.name)!r})"
-        for field in dataclasses.fields(TrainConfig)
-        if field.name not in RESUMABLE_FIELDS
-        and getattr(command, field.name) != getattr(defaults, field.name)
-        and getattr(command, field.name) != getattr(saved, field.name)
+        f"{flag} {value!r} (run has {own[flag]!r})"
+        for flag, value in given.items()
+        if flag not in RESUMABLE_FLAGS and value != preset[flag] and value != own[flag]
     ]
     if contradicting:
         raise ConfigError(
@@ -431,7 +456,7 @@ def resolve(command: TrainCommand, defaults: TrainCommand) -> TrainConfig:
 
 def _interrupted_before_training(command: TrainCommand) -> str:
     """What a Ctrl-C before the first iteration (loading, tracing, compiling) leaves, and how to go on."""
-    run_dir = Path(command.resume) if command.resume else command.config().directory()
+    run_dir = Path(command.resume) if command.resume else command.train_config().directory()
     if (run_dir / CONFIG_FILE).exists():
         return (
             f"interrupted before training started; {run_dir} keeps its config. Start it with: "
@@ -441,15 +466,19 @@ def _interrupted_before_training(command: TrainCommand) -> str:
 
 
 def parse_command(argv: list[str]) -> tuple[TrainCommand, TrainCommand]:
-    """The command ``python -m swat_jax.train ARGV`` asks for, and its preset's defaults."""
-    defaults = _preset_defaults(argv)
+    """The command ``python -m swat_jax.train ARGV`` asks for, and its defaults (a preset's or a file's)."""
+    defaults = _defaults(argv)
     return tyro.cli(TrainCommand, args=argv, default=defaults, prog="python -m swat_jax.train"), defaults
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and train; returns the exit status (2 for a bad option or run directory)."""
     enable_caches()
-    command, defaults = parse_command(sys.argv[1:] if argv is None else argv)
+    try:
+        command, defaults = parse_command(sys.argv[1:] if argv is None else argv)
+    except ConfigError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return ERROR_STATUS
     try:
         command.start_distributed()
         config = resolve(command, defaults)

@@ -71,10 +71,11 @@ def pytest_xdist_make_scheduler(config, log):
 MORPHOLOGIES = Path(__file__).resolve().parents[1] / "morphologies"
 
 
-def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
+def tiny_train_config(run_dir: Path, env_dir: Path, network=None, envs=None, **overrides):
     """A run small enough for CI: hopper_3 alone, 2 seeds in one program, 2 copies in the paper preset's
-    lock-step rounds, a 1-layer AMORPHEUS of width 16, evaluated (2 episodes) at 400 steps and at the end."""
-    from swat_jax.runs.config import TrainConfig
+    lock-step rounds, a 1-layer AMORPHEUS of width 16, evaluated (2 episodes) at 400 steps and at the end.
+    ``network`` and ``envs``: fields of those groups to change (a dict), the rest as given."""
+    from swat_jax.runs.config import EnvConfig, NetworkSizes, TrainConfig
     from swat_jax.td3.iteration import IterationConfig
     from swat_jax.td3.learner import TD3Config
 
@@ -83,12 +84,10 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
         algo="amorpheus",
         steps=600,
         seeds=2,
-        copies=2,
+        envs=EnvConfig(**{"copies": 2, **(envs or {})}),
         iteration=IterationConfig(chunk=50, random_steps=100, capacity=1000, rounds=True),
         td3=TD3Config(batch_size=16),
-        width=16,
-        layers=1,
-        feedforward=32,
+        network=NetworkSizes(**{"width": 16, "layers": 1, "feedforward": 32, **(network or {})}),
         log_interval=200,
         checkpoint_interval=400,
         eval_interval=400,
@@ -99,29 +98,10 @@ def tiny_train_config(run_dir: Path, env_dir: Path, **overrides):
 
 
 def train_flags(config) -> list[str]:
-    """``python -m swat_jax.train`` flags that build ``config`` (every field that differs from the paper preset)."""
-    import dataclasses
+    """``python -m swat_jax.train`` flags that build ``config`` (its preset and every value that differs)."""
+    from swat_jax.runs.config import config_flags
 
-    from swat_jax.runs.config import PRESETS
-
-    def flags(value, default, prefix: str) -> list[str]:
-        if dataclasses.is_dataclass(value):
-            return [
-                flag
-                for field in dataclasses.fields(value)
-                for flag in flags(
-                    getattr(value, field.name), getattr(default, field.name), f"{prefix}{field.name}."
-                )
-            ]
-        name = prefix.rstrip(".").replace("_", "-")
-        if value == default:
-            return []
-        if isinstance(value, bool):
-            group, _, field = name.rpartition(".")
-            return [f"--{name}" if value else f"--{group + '.' if group else ''}no-{field}"]
-        return [f"--{name}", str(value)]
-
-    return flags(config, PRESETS["paper"], "")
+    return config_flags(config)
 
 
 @pytest.fixture(scope="session")
@@ -151,7 +131,13 @@ def trained_swat_run(tmp_path_factory, hopper_folder) -> Path:
 
     run_dir = tmp_path_factory.mktemp("runs") / "tiny_swat"
     config = tiny_train_config(
-        run_dir, hopper_folder, algo="swat", steps=100, seeds=1, eval_interval=0, max_traversal_positions=3
+        run_dir,
+        hopper_folder,
+        algo="swat",
+        steps=100,
+        seeds=1,
+        eval_interval=0,
+        network={"max_traversal_positions": 3},
     )
     train(config, progress=False)
     return run_dir

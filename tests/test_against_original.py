@@ -14,6 +14,7 @@ import pytest
 from experiments import against_original as against
 from experiments.original import curves, returns, runs
 from swat_jax.morphology import get_set
+from swat_jax.runs.config import flag_values as config_values
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -29,15 +30,15 @@ def flag_values(flags) -> dict[str, str]:
 
 @pytest.mark.parametrize("environment_set", ["hopper", "walker"])
 def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_path, environment_set):
-    ours = flag_values(runs.ours(tmp_path, MICRO, environment_set).flags)
+    ours = config_values(runs.ours(tmp_path, MICRO, environment_set).config)
     for seed, run in enumerate(runs.original_runs(tmp_path, MICRO, environment_set)):
         theirs = flag_values(run.flags())
         assert theirs["--seed"] == str(seed)
         same = {
-            "--width": "--attention_embedding_size",
-            "--heads": "--attention_heads",
-            "--layers": "--attention_layers",
-            "--feedforward": "--attention_hidden_size",
+            "--network.width": "--attention_embedding_size",
+            "--network.heads": "--attention_heads",
+            "--network.layers": "--attention_layers",
+            "--network.feedforward": "--attention_hidden_size",
             "--iteration.random-steps": "--start_timesteps",
             "--iteration.capacity": "--rb_per_env",
             "--td3.learning-rate": "--lr",
@@ -50,7 +51,7 @@ def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_pat
             == {"hopper": "environments/hoppers", "walker": "environments/walkers"}[environment_set]
         )
         assert int(theirs["--max_timesteps"]) == MICRO.budget(environment_set)
-    assert (ours["--preset"], ours["--seeds"]) == ("paper", str(MICRO.seeds))
+    assert (ours["--preset"], ours["--seeds"]) == ("paper", MICRO.seeds)
     bodies = len(get_set(environment_set).train)
     stored = int(ours["--steps"])
     assert stored == MICRO.stored_budget(environment_set) >= 1.75 * MICRO.budget(environment_set), (

@@ -262,7 +262,7 @@ def test_a_runs_recipe_holds_what_its_programs_are_traced_from(tmp_path, hopper_
     """Where, how long and from which seed a run goes does not change its programs; its hyperparameters,
     seed count and bodies' physics do."""
     config = tiny_train_config(tmp_path / "run", hopper_folder)
-    env = MultiTaskEnv(["hopper_3"], config.copies)
+    env = MultiTaskEnv(["hopper_3"], config.envs.copies)
     recipe = program_recipe(config, env)
     host_only = dataclasses.replace(
         config, run_dir=str(tmp_path / "other"), env="hopper", seed=7, steps=10**6, eval_interval=0
@@ -270,14 +270,14 @@ def test_a_runs_recipe_holds_what_its_programs_are_traced_from(tmp_path, hopper_
     assert program_recipe(host_only, env) == recipe
     assert program_recipe(dataclasses.replace(config, seeds=3), env) != recipe
     assert program_recipe(dataclasses.replace(config, td3=TD3Config(batch_size=8)), env) != recipe
-    assert program_recipe(config, MultiTaskEnv(["hopper_3"], config.copies + 1)) != recipe
+    assert program_recipe(config, MultiTaskEnv(["hopper_3"], config.envs.copies + 1)) != recipe
     body = tmp_path / "hopper_3.xml"
     (tmp_path / "assets").symlink_to(MORPHOLOGIES / "assets")
     original = (MORPHOLOGIES / "hopper_3.xml").read_text()
     body.write_text(original)
-    before = program_recipe(config, MultiTaskEnv([str(body)], config.copies))
+    before = program_recipe(config, MultiTaskEnv([str(body)], config.envs.copies))
     body.write_text(original.replace('friction="0.9 0.005 0.0001"', 'friction="0.5 0.005 0.0001"', 1))
     assert body.read_text() != original, "the edit did not apply"
-    assert program_recipe(config, MultiTaskEnv([str(body)], config.copies)) != before, (
+    assert program_recipe(config, MultiTaskEnv([str(body)], config.envs.copies)) != before, (
         "same morphology, other physics"
     )

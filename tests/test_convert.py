@@ -58,7 +58,9 @@ def converted_actions(run_dir: Path) -> np.ndarray:
     """The converted policy's actions [B, limbs] on the fixture's observations of its body."""
     policy = load_policy(run_dir)
     body = str(MODELS["body"])
-    tasks = task_set([body], policy.config.network(), reference_inorder=policy.config.reference_inorder)
+    tasks = task_set(
+        [body], policy.config.network_config(), reference_inorder=policy.config.network.reference_inorder
+    )
     one = jax.tree.map(lambda x: x[0], tasks.structure)
     observation = MODELS["observation"]
     limbs = int(one.num_limbs)
@@ -71,7 +73,8 @@ def test_converted_policy_acts_as_the_original(architecture, tmp_path, hopper_fo
     model = stored_model(architecture)
     config = train_config(model, env=str(hopper_folder), run_dir=str(tmp_path / "run"))
     assert config.algo == ALGORITHMS[architecture] and config.seed == 3
-    assert (config.width, config.heads, config.layers, config.feedforward) == (16, 2, 2, 32)
+    network = config.network
+    assert (network.width, network.heads, network.layers, network.feedforward) == (16, 2, 2, 32)
     run_dir = convert(model, config)
     np.testing.assert_allclose(converted_actions(run_dir), MODELS[f"{architecture}/actions"], **TOLERANCE)
 
@@ -93,7 +96,7 @@ def test_converted_smp_policy_acts_as_the_original(tmp_path, hopper_folder):
         path=tmp_path / "model.pyth",
     )
     config = train_config(model, env=str(hopper_folder), run_dir=str(tmp_path / "run"))
-    assert config.algo == "smp" and config.network().max_children == 1
+    assert config.algo == "smp" and config.network_config().max_children == 1
     run_dir = convert(model, config)
     np.testing.assert_allclose(converted_actions(run_dir), MODELS["smp/actions"], **TOLERANCE)
 

@@ -10,17 +10,10 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-from conftest import tiny_train_config, train_flags
+from conftest import tiny_train_config
 
 from experiments import paper
-
-RUN_FLAGS = ("--env", "--algo", "--seeds", "--steps", "--run-dir")
-"""Flags every run of the grid sets itself."""
-
-
-def flag_value(run: paper.RunSpec, flag: str) -> str | None:
-    flags = list(run.flags)
-    return flags[flags.index(flag) + 1] if flag in flags else None
+from swat_jax.runs.config import load_config
 
 
 def test_figure4_and_figure6_train_every_set_with_every_algorithm_seeds_in_one_program(tmp_path):
@@ -30,11 +23,16 @@ def test_figure4_and_figure6_train_every_set_with_every_algorithm_seeds_in_one_p
         "hopper-swat", "hopper-amorpheus", "hopper-smp", "walker-swat", "walker-amorpheus", "walker-smp"
     ]  # fmt: skip
     for run in runs:
-        config = run.config()
-        assert (config.seeds, config.steps, config.split, config.width) == (3, scale.steps, "train", 32)
+        config = run.config
+        assert (config.seeds, config.steps, config.split, config.network.width) == (
+            3,
+            scale.steps,
+            "train",
+            32,
+        )
         assert config.directory() == run.run_dir
     ablations = paper.grid("figure6", scale, ["hopper"], paper.ABLATIONS, tmp_path)
-    assert [run.config().algo for run in ablations] == list(paper.ABLATIONS)
+    assert [run.config.algo for run in ablations] == list(paper.ABLATIONS)
     assert ablations[0].run_dir == runs[0].run_dir, "figure6 reuses figure4's SWAT run"
 
 
@@ -49,10 +47,10 @@ def test_figure5_pretrains_then_fine_tunes_on_held_out_bodies_against_training_f
     ], "hopper has no held-out bodies, so it is skipped"  # fmt: skip
     by_name = {run.name: run for run in runs}
     for algorithm in paper.MAIN_ALGORITHMS:
-        transfer = by_name[f"walker-test-{algorithm}-transfer"].config()
+        transfer = by_name[f"walker-test-{algorithm}-transfer"].config
         assert transfer.init_from == str(by_name[f"walker-{algorithm}"].run_dir.resolve())
         assert (transfer.split, transfer.steps, transfer.algo) == ("test", scale.finetune_steps, algorithm)
-    scratch = by_name["walker-test-swat-scratch"].config()
+    scratch = by_name["walker-test-swat-scratch"].config
     assert (scratch.init_from, scratch.split) == ("", "test")
     assert [run.name for run in paper.plotted_runs("figure5", runs)] == names[3:]
 
@@ -66,28 +64,30 @@ def test_tables_need_a_set_with_held_out_bodies(tmp_path, capsys):
     assert "needs sets with held-out bodies" in capsys.readouterr().err
 
 
-def test_dry_run_prints_the_training_commands(tmp_path, capsys):
+def test_dry_run_writes_the_runs_configs_and_prints_their_commands(tmp_path, capsys):
+    """The grid is TrainConfig JSON that ``train --config`` reads, not flag strings parsed back."""
     assert (
         paper.main(["figure4", "--sets", "hopper", "--algos", "smp", "--out", str(tmp_path), "--dry-run"])
         == 0
     )
     (line,) = capsys.readouterr().out.splitlines()
-    assert line.startswith("python -m swat_jax.train --env hopper --algo smp --seeds 3")
-    assert line.endswith(f"--run-dir {tmp_path / 'runs' / 'hopper-smp'}")
-    assert not (tmp_path / "runs").exists()
+    written = tmp_path / "runs" / "hopper-smp.json"
+    assert line == f"python -m swat_jax.train --config {written}"
+    config = load_config(written)
+    assert (config.env, config.algo, config.seeds, config.network.smp_hidden) == ("hopper", "smp", 3, 32)
+    assert config.run_dir == str(tmp_path / "runs" / "hopper-smp")
+    assert not (tmp_path / "runs" / "hopper-smp").exists(), "nothing trained"
 
 
 def micro_scale(hopper_folder: Path, steps: int) -> paper.Scale:
     """The shared tiny run's settings (2 seeds, evaluated during training) as a scale of ``steps`` steps."""
-    flags = train_flags(tiny_train_config(Path("unused"), hopper_folder))
-    pairs = [(flags[i], flags[i + 1]) for i in range(0, len(flags), 2) if flags[i] not in RUN_FLAGS]
     return paper.Scale(
         name="micro",
         seeds=2,
         steps=steps,
         finetune_steps=steps,
         table_episodes=2,
-        flags=" ".join(f"{flag} {value}" for flag, value in pairs),
+        base=tiny_train_config(Path("unused"), hopper_folder),
         sets={},
     )
 
@@ -119,7 +119,8 @@ def test_figure4_end_to_end_trains_resumes_keeps_and_draws(tmp_path, hopper_fold
     assert f"| {hopper_folder.name} | amorpheus | 600 |" in text, "final point of the curve"
 
     (run,) = paper.grid("figure4", full, sets, algorithms, out)
-    wider = dataclasses.replace(full, flags=full.flags.replace("--width 16", "--width 32"))
+    wider_network = dataclasses.replace(full.base.network, width=32)
+    wider = dataclasses.replace(full, base=dataclasses.replace(full.base, network=wider_network))
     (other,) = paper.grid("figure4", wider, sets, algorithms, out)
     assert paper.progress(run) == 600
     with pytest.raises(paper.GridError, match="width 16 \\(wanted 32\\)"):

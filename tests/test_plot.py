@@ -197,7 +197,7 @@ def test_relations_figure_is_a_heatmap_of_g_per_head_labelled_with_limb_names(tr
     ("body", "expected"),
     [
         ("nervenet_hopper", ["21 observation features", "trained on 19"]),
-        ("humanoid_2d_9_full", ["9 limbs", "--max-traversal-positions 9"]),
+        ("humanoid_2d_9_full", ["9 limbs", "--network.max-traversal-positions 9"]),
         ("no_such_body", ["no_such_body"]),
     ],
 )

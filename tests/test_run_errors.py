@@ -61,8 +61,10 @@ def test_eval_of_a_run_without_checkpoints_says_so_in_its_own_words(trained_run,
 
 
 def test_a_network_too_small_for_the_bodies_names_body_limbs_and_flag(tmp_path, hopper_folder):
-    config = tiny_train_config(tmp_path / "run", hopper_folder, algo="swat", max_traversal_positions=2)
+    config = tiny_train_config(
+        tmp_path / "run", hopper_folder, algo="swat", network={"max_traversal_positions": 2}
+    )
     with pytest.raises(ConfigError) as raised:
         Experiment.build(config)
     assert "hopper_3 has 3 limbs, more than the 2 positions of each traversal table" in str(raised.value)
-    assert "train with --max-traversal-positions 3 or more" in str(raised.value)
+    assert "train with --network.max-traversal-positions 3 or more" in str(raised.value)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
 import signal
@@ -24,12 +25,20 @@ from swat_jax.compilation_cache import lower_built_afresh
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
-from swat_jax.runs.config import FIXES, PRESETS, Algorithm, ConfigError, TrainConfig, load_config
+from swat_jax.runs.config import (
+    PRESETS,
+    Algorithm,
+    ConfigError,
+    NetworkSizes,
+    TrainConfig,
+    fixed,
+    load_config,
+)
 from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.metrics import read_metrics
 from swat_jax.runs.trained import load_policy
 from swat_jax.td3.iteration import IterationConfig
-from swat_jax.train import RunExistsError, TrainCommand, main, resolve, train
+from swat_jax.train import RunExistsError, TrainCommand, main, parse_command, resolve, train
 
 TIMING_COLUMNS = {"steps_per_second"}
 
@@ -131,11 +140,12 @@ def test_existing_run_directory_is_not_overwritten(trained_run):
 
 def test_resume_refuses_options_that_contradict_the_saved_config(trained_run):
     defaults = TrainCommand()
-    command = dataclasses.replace(defaults, resume=str(trained_run), width=64, steps=1200)
-    with pytest.raises(ConfigError, match="--width 64"):
+    wider = dataclasses.replace(defaults.network, width=64)
+    command = dataclasses.replace(defaults, resume=str(trained_run), network=wider, steps=1200)
+    with pytest.raises(ConfigError, match=r"--network\.width 64 \(run has 16\)"):
         resolve(command, defaults)
     resumed = resolve(dataclasses.replace(defaults, resume=str(trained_run), steps=1200), defaults)
-    assert resumed.steps == 1200 and resumed.width == 16 and resumed.run_dir == str(trained_run)
+    assert resumed.steps == 1200 and resumed.network.width == 16 and resumed.run_dir == str(trained_run)
 
 
 def copy_run(trained_run: Path, tmp_path: Path) -> Path:
@@ -148,7 +158,8 @@ def copy_run(trained_run: Path, tmp_path: Path) -> Path:
 
 def test_mismatched_checkpoint_names_the_arrays(trained_run, tmp_path):
     run_dir = copy_run(trained_run, tmp_path)
-    config = dataclasses.replace(load_config(run_dir / "config.json"), width=32)
+    saved = load_config(run_dir / "config.json")
+    config = dataclasses.replace(saved, network=dataclasses.replace(saved.network, width=32))
     with pytest.raises(CheckpointError, match=r"does not match this run: .*actor_params.*expected"):
         train(config, resume=True, progress=False)
 
@@ -344,32 +355,39 @@ def test_every_named_network_is_an_algo_choice():
 
 
 def test_smp_hidden_sizes_both_modules_and_is_checked():
-    network = TrainConfig(env="hopper", algo="smp", smp_hidden=32).network()
+    network = TrainConfig(env="hopper", algo="smp", network=NetworkSizes(smp_hidden=32)).network_config()
     assert (network.up_hidden, network.down_hidden) == ((32, 32), (32, 32))
-    assert TrainConfig(env="hopper", algo="smp").network().down_hidden == (400, 300), "the paper's by default"
-    with pytest.raises(ConfigError, match="--smp-hidden must be a positive whole number, got 0"):
-        TrainConfig(env="hopper", algo="smp", smp_hidden=0)
+    assert TrainConfig(env="hopper", algo="smp").network_config().down_hidden == (400, 300), "the paper's"
+    with pytest.raises(ConfigError, match=r"--network\.smp-hidden must be a positive whole number, got 0"):
+        TrainConfig(env="hopper", algo="smp", network=NetworkSizes(smp_hidden=0))
 
 
 def test_presets_follow_the_budget_convention():
     paper, fast = PRESETS["paper"], PRESETS["fast"]
-    assert paper.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per env step"
+    assert paper == TrainConfig(), "the paper preset is the defaults, the base the others differ from"
+    assert paper.envs.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per step"
     assert paper.td3.batch_size == 100 and paper.iteration.capacity == 500_000
-    assert fast.copies > 1 and fast.iteration.schedule == "all_tasks", "parallel copies, all-body updates"
+    assert fast.envs.copies > 1 and fast.iteration.schedule == "all_tasks", (
+        "parallel copies, all-body updates"
+    )
     assert paper.steps_per_iteration(num_bodies=5) == 5 * 100, "steps count every body"
 
 
 def test_the_intended_preset_is_the_paper_preset_with_every_quirk_fixed():
     paper, intended, fast = PRESETS["paper"], PRESETS["intended"], PRESETS["fast"]
-    quirks = {"torso_relative_x": False, "reference_inorder": True, "stale_kinematics": True}
-    assert {name: getattr(paper, name) for name in quirks} == quirks
-    assert dataclasses.replace(intended, preset="paper", **quirks) == paper
-    assert (
-        {name: getattr(intended, name) for name in quirks}
-        == FIXES
-        == {name: getattr(fast, name) for name in quirks}
-    )
-    assert all(FIXES[name] != quirks[name] for name in quirks)
+
+    def quirks(config: TrainConfig) -> dict[str, bool]:
+        return {
+            "torso_relative_x": config.envs.torso_relative_x,
+            "stale_kinematics": config.envs.stale_kinematics,
+            "reference_inorder": config.network.reference_inorder,
+        }
+
+    original = {"torso_relative_x": False, "stale_kinematics": True, "reference_inorder": True}
+    assert quirks(paper) == original
+    assert quirks(intended) == quirks(fast) == {name: not value for name, value in original.items()}
+    assert dataclasses.replace(intended, preset="paper", envs=paper.envs, network=paper.network) == paper
+    assert fixed(paper) == dataclasses.replace(intended, preset="paper")
 
 
 def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):
@@ -383,6 +401,34 @@ def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):
     with pytest.raises(SystemExit):
         main(["--preset", "fast", "--help"])
     assert "(default: 4)" in capsys.readouterr().out, "--help shows the fast preset's copies"
+
+
+def test_a_config_file_gives_the_defaults_that_flags_override(tmp_path, capsys):
+    """train --config FILE: a grid writes TrainConfig JSON instead of flag strings; flags still override it."""
+    written = dataclasses.replace(
+        PRESETS["fast"], env="walker", steps=5000, network=NetworkSizes(width=24), run_dir=str(tmp_path / "r")
+    )
+    path = tmp_path / "grid.json"
+    path.write_text(written.to_json())
+    command, _ = parse_command(["--config", str(path), "--steps", "7000", "--envs.copies", "2"])
+    expected = dataclasses.replace(written, steps=7000, envs=dataclasses.replace(written.envs, copies=2))
+    assert command.train_config() == expected
+    assert main(["--config", str(path), "--preset", "paper"]) == 2
+    assert "give one of them" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="drop --config"):
+        resolve(*parse_command(["--config", str(path), "--resume", str(tmp_path / "r")]))
+
+
+def test_a_config_json_of_the_flat_layout_still_loads(tmp_path):
+    """Runs written before the network sizes and environment switches had groups still evaluate and plot."""
+    fields = json.loads(TrainConfig(env="hopper").to_json())
+    flat = {key: value for key, value in fields.items() if key not in ("network", "envs")}
+    flat.update(width=48, copies=3, physics="c", torso_relative_x=True, reference_inorder=False)
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(flat))
+    config = load_config(path)
+    assert (config.network.width, config.network.reference_inorder) == (48, False)
+    assert (config.envs.copies, config.envs.physics, config.envs.torso_relative_x) == (3, "c", True)
 
 
 def test_cli_reports_an_existing_run_directory(trained_run, capsys):
@@ -418,7 +464,7 @@ def test_make_train_passes_options_through():
 
 
 def test_replay_too_large_stops_before_anything_is_written(hopper_folder, tmp_path):
-    huge = IterationConfig(chunk=50, updates=20, random_steps=100, capacity=10**12)
+    huge = IterationConfig(chunk=50, updates=20, random_steps=100, capacity=10**12, rounds=False)
     config = tiny_train_config(tmp_path / "huge", hopper_folder, iteration=huge)
     with pytest.raises(MemoryError, match=r"lower --iteration\.capacity to at most"):
         train(config, progress=False)
@@ -467,7 +513,7 @@ def test_init_from_refuses_networks_that_do_not_fit_naming_both_runs(trained_run
     with pytest.raises(
         ConfigError, match=rf"--init-from {trained_run} .*cannot start .*width 16 there, 32 here"
     ):
-        Experiment.build(config(width=32))
+        Experiment.build(config(network={"width": 32}))
     with pytest.raises(ConfigError, match="19 observation features per limb there, 21 here"):
         Experiment.build(config(bodies=("nervenet_hopper",)))
     with pytest.raises(ConfigError, match=r"--init-seed-index 2, but it has 2 seeds \(0, 1\)"):

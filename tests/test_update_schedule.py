@@ -25,7 +25,7 @@ BODIES = ("hopper_3", "cheetah_4_front")
 LIMBS = 4
 FEATURES = 19
 STRUCTURE = pad_structures([load(body) for body in BODIES], max_limbs=LIMBS)
-CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, schedule="original")
+CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, schedule="original", rounds=False)
 UPDATES = len(BODIES) * CONFIG.updates
 """Updates per iteration: 3 per body."""
 ACTOR_STEPS = [0, 2, 3, 5]
@@ -202,6 +202,8 @@ def test_the_paper_preset_trains_with_the_original_schedule():
     with pytest.raises(ConfigError, match=r"--iteration\.schedule must be one of original, all_tasks"):
         TrainConfig(iteration=IterationConfig(schedule="per_body"))
     assert PRESETS["paper"].iteration.rounds and PRESETS["intended"].iteration.rounds
-    assert TrainConfig().iteration.rounds and not PRESETS["fast"].iteration.rounds
+    assert (
+        TrainConfig().iteration.rounds and IterationConfig().rounds and not PRESETS["fast"].iteration.rounds
+    )
     with pytest.raises(ConfigError, match=r"--iteration\.rounds .* add --iteration\.schedule original"):
         TrainConfig(iteration=IterationConfig(schedule="all_tasks", rounds=True))

@@ -18,7 +18,6 @@ from swat_jax.envs import BodyEnv, MultiTaskEnv
 from swat_jax.eval import EvalOptions, evaluate_run
 from swat_jax.morphology.variants import Variation, write_variants
 from swat_jax.runs import Checkpoints, ConfigError, Experiment, load_config
-from swat_jax.runs.config import FIXES
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.train import train
 
@@ -110,11 +109,12 @@ def test_a_run_trains_on_variants_and_evaluates_on_held_out_ones(tmp_path, hoppe
         tmp_path / "run",
         hopper_folder,
         preset="fast",
-        iteration=IterationConfig(chunk=50, updates=4, schedule="all_tasks", random_steps=100, capacity=1000),
-        **FIXES,
+        iteration=IterationConfig(
+            chunk=50, updates=4, schedule="all_tasks", rounds=False, random_steps=100, capacity=1000
+        ),
+        envs={"variants": 2, "variation": 0.3, "torso_relative_x": True, "stale_kinematics": False},
+        network={"reference_inorder": False},
         steps=200,
-        variants=2,
-        variation=0.3,
         eval_interval=0,
         log_interval=100,
     )
@@ -135,14 +135,14 @@ def test_a_run_trains_on_variants_and_evaluates_on_held_out_ones(tmp_path, hoppe
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (dict(variants=3), "--variants must be 0 \\(off\\) or a number up to --copies \\(2\\)"),
-        (dict(variants=2, variation=1.0), "--variation must lie in \\[0, 1\\)"),
+        (dict(variants=3), "--envs.variants must be 0 \\(off\\) or a number up to --envs.copies \\(2\\)"),
+        (dict(variants=2, variation=1.0), "--envs.variation must lie in \\[0, 1\\)"),
         (
             dict(variants=2, physics="warp", stale_kinematics=False),
-            "--variants runs on --physics c, jax or auto",
+            "--envs.variants runs on --envs.physics c, jax or auto",
         ),
     ],
 )
 def test_variant_options_that_cannot_run_are_refused(hopper_folder, tmp_path, overrides, message):
     with pytest.raises(ConfigError, match=message):
-        tiny_train_config(tmp_path, hopper_folder, **overrides)
+        tiny_train_config(tmp_path, hopper_folder, envs=overrides)

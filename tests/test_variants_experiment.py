@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,9 +13,10 @@ from experiments import variants as experiment
 def test_the_plan_trains_the_same_run_with_and_without_variants(tmp_path):
     options = experiment.Options(out=tmp_path, train_variants=8, variation=0.2, spreads=(0.2, 0.4))
     runs = experiment.runs(options)
-    nominal, variants = runs["nominal"].config(), runs["variants"].config()
-    assert (nominal.variants, variants.variants, variants.variation) == (0, 8, 0.2)
-    assert nominal == type(nominal)(**{**vars(variants), "variants": 0, "run_dir": nominal.run_dir})
+    nominal, variants = runs["nominal"].config, runs["variants"].config
+    assert (nominal.envs.variants, variants.envs.variants, variants.envs.variation) == (0, 8, 0.2)
+    assert nominal == dataclasses.replace(variants, envs=nominal.envs, run_dir=nominal.run_dir)
+    assert nominal.envs == dataclasses.replace(variants.envs, variants=0), "the variants are the only change"
     evaluations = experiment.conditions(options)
     assert list(evaluations) == ["bodies", "variants ±20%", "variants ±40%"]
     assert evaluations["variants ±40%"].variation == 0.4 and evaluations["variants ±40%"].variant_seed == 1

@@ -97,11 +97,15 @@ def test_a_warp_run_trains_and_evaluates_on_warp(tmp_path, hopper_folder):
     CPU (600 steps and two evaluations took 73 s here, 200 steps and one 27 s)."""
     run_dir = tmp_path / "warp"
     config = tiny_train_config(
-        run_dir, hopper_folder, physics="warp", stale_kinematics=False, steps=200, eval_interval=200
+        run_dir,
+        hopper_folder,
+        envs={"physics": "warp", "stale_kinematics": False},
+        steps=200,
+        eval_interval=200,
     )
     train(config, progress=False)
     policy = load_policy(run_dir)
-    assert policy.config.physics == "warp"
+    assert policy.config.envs.physics == "warp"
     [evaluation] = evaluate(policy, ["hopper_3"], episodes=2, seed=0)
     final = {int(row["seed"]): row for row in read_metrics(run_dir) if row["env_steps"] == 200}
     assert len(final) == 2

@@ -50,7 +50,9 @@ def measure(env: str, preset: str, physics: str, iterations: int) -> dict[str, f
     from swat_jax.runs.experiment import Experiment
 
     # Warp cannot read the stale kinematics of the paper preset: both physics run without them.
-    config = dataclasses.replace(PRESETS[preset], env=env, physics=physics, stale_kinematics=False)
+    base = PRESETS[preset]
+    envs = dataclasses.replace(base.envs, physics=physics, stale_kinematics=False)
+    config = dataclasses.replace(base, env=env, envs=envs)
     seconds = {}
     start = time.perf_counter()
     experiment = Experiment.build(config)

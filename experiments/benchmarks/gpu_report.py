@@ -135,7 +135,8 @@ TINY = ReportSettings(
     train_seeds=2,
     train_seconds=30.0,
     train_flags=(
-        "--width", "16", "--heads", "1", "--layers", "1", "--feedforward", "32", "--copies", "2",
+        "--network.width", "16", "--network.heads", "1", "--network.layers", "1", "--network.feedforward", "32",
+        "--envs.copies", "2",
         "--iteration.chunk", "10", "--iteration.updates", "2", "--iteration.random-steps", "20",
         "--iteration.capacity", "2000", "--td3.batch-size", "8", "--log-interval", "60",
     ),

@@ -74,7 +74,7 @@ def measure(
     else:
         updates = iterations * config.iteration.updates
     batch_rows = config.td3.batch_size * (1 if config.iteration.schedule == "original" else bodies)
-    stored = iterations * config.iteration.chunk * config.copies * bodies
+    stored = iterations * config.iteration.chunk * config.envs.copies * bodies
     return Measurement(
         label,
         config,
@@ -138,14 +138,17 @@ def main() -> None:
             base.iteration, random_steps=0, capacity=args.capacity, **changes.pop("iteration", {})
         )
         sizes = dict(zip(("width", "layers", "feedforward"), args.sizes or (), strict=False))
-        stale = base.stale_kinematics and args.physics != "warp"
+        stale = base.envs.stale_kinematics and args.physics != "warp"
+        envs = dataclasses.replace(
+            base.envs, physics=args.physics, stale_kinematics=stale, **changes.pop("envs", {})
+        )
         return dataclasses.replace(
-            base, env=args.env, algo=args.algo, iteration=iteration, physics=args.physics, seeds=args.seeds,
-            stale_kinematics=stale, **sizes, **changes,
+            base, env=args.env, algo=args.algo, iteration=iteration, seeds=args.seeds, envs=envs,
+            network=dataclasses.replace(base.network, **sizes), **changes,
         )  # fmt: skip
 
     runs = [(preset, configured(preset)) for preset in args.presets]
-    runs += [(f"fast, {n} copies", configured("fast", copies=n)) for n in args.fast_copies]
+    runs += [(f"fast, {n} copies", configured("fast", envs={"copies": n})) for n in args.fast_copies]
     runs += [(f"fast, {n} updates", configured("fast", iteration={"updates": n})) for n in args.fast_updates]
     if args.collection:
         paper = configured("paper")
@@ -176,7 +179,7 @@ def main() -> None:
     for r in results:
         c = r.config
         print(
-            f"| {r.label} | {c.copies} | {c.iteration.chunk} | {c.iteration.updates} | {c.td3.batch_size} "
+            f"| {r.label} | {c.envs.copies} | {c.iteration.chunk} | {c.iteration.updates} | {c.td3.batch_size} "
             f"| {r.compile_seconds:.0f} | {r.env_steps_per_second:,.1f} | {r.stored_per_counted:.2f} "
             f"| {r.seconds_per_iteration:.1f} | {r.transitions_per_second:,.0f} "
             f"| {r.env_steps_per_second / paper.env_steps_per_second:.2f} "

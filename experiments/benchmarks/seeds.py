@@ -22,9 +22,9 @@ from pathlib import Path
 
 from experiments.machine import cpu_model, host_cores, software_versions
 
-SMALL_NETWORK = ["--width", "32", "--layers", "1", "--feedforward", "64"]
+SMALL_NETWORK = ["--network.width", "32", "--network.layers", "1", "--network.feedforward", "64"]
 ITERATION = [
-    "--copies", "4",
+    "--envs.copies", "4",
     "--iteration.chunk", "50",
     "--iteration.updates", "50",
     "--iteration.random-steps", "1000",

@@ -22,7 +22,7 @@ from experiments.benchmarks.presets import measure
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.workers import Job, in_fresh_process
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.runs.config import TrainConfig
+from swat_jax.runs.config import EnvConfig, NetworkSizes, TrainConfig
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 from swat_jax.td3.sharding import placement
@@ -33,11 +33,9 @@ def arm_config(env: str, seeds: int) -> TrainConfig:
     return TrainConfig(
         env=env,
         seeds=seeds,
-        copies=8,
-        width=32,
-        layers=1,
-        feedforward=64,
-        iteration=IterationConfig(chunk=25, updates=20, random_steps=0, capacity=20_000),
+        envs=EnvConfig(copies=8),
+        network=NetworkSizes(width=32, layers=1, feedforward=64),
+        iteration=IterationConfig(chunk=25, updates=20, rounds=False, random_steps=0, capacity=20_000),
         td3=TD3Config(batch_size=100),
     )
 
@@ -47,7 +45,7 @@ def arm(env: str, seeds: int, devices: int, iterations: int) -> dict[str, Any]:
     config = arm_config(env, seeds)
     chosen = jax.devices()[:devices]
     result = measure(f"{devices} devices", config, iterations, chosen)
-    layout = placement(seeds, len(config.training_bodies()), config.copies, chosen)
+    layout = placement(seeds, len(config.training_bodies()), config.envs.copies, chosen)
     return {
         "devices": devices,
         "mesh": layout.describe().split(";")[0],

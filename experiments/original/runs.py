@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from experiments.paper import (
     GridError,
@@ -24,6 +25,7 @@ from experiments.paper import (
 )
 from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
+from swat_jax.runs.config import PRESETS, TrainConfig
 
 ORIGINAL = "original (PyTorch)"
 OURS = "swat_jax (paper preset)"
@@ -66,6 +68,30 @@ class Settings:
     """Chunks of 100 steps per body between two points of the curves."""
     final_fraction: float = 0.2
     """The final return of a seed is its mean over the points in this last fraction of the budget."""
+
+    def config(self, base: TrainConfig, environment_set: str, run_dir: Path, **fields: Any) -> TrainConfig:
+        """``base`` (a preset) with these sizes and hyperparameters, SWAT, every seed in one program, in
+        ``run_dir``, a checkpoint every 4 curve points; ``fields`` (the budget, the log interval) on top."""
+        return dataclasses.replace(
+            base,
+            env=environment_set,
+            algo="swat",
+            seeds=self.seeds,
+            run_dir=str(run_dir),
+            network=dataclasses.replace(
+                base.network,
+                width=self.width,
+                heads=self.heads,
+                layers=self.layers,
+                feedforward=self.feedforward,
+            ),
+            iteration=dataclasses.replace(
+                base.iteration, random_steps=self.random_steps, capacity=self.capacity
+            ),
+            td3=dataclasses.replace(base.td3, learning_rate=self.learning_rate, batch_size=self.batch_size),
+            checkpoint_interval=self.log_interval(environment_set) * 4,
+            **fields,
+        )
 
     def log_interval(self, environment_set: str) -> int:
         """Environment steps (all bodies) between two points of ``environment_set``'s curves."""
@@ -135,15 +161,11 @@ def ours(out: Path, settings: Settings, environment_set: str) -> RunSpec:
     than it counts; it runs for :meth:`Settings.stored_budget` steps and logs a row (with the steps
     counted so far) after every chunk, for the curves to be binned by counted steps."""
     chunk = len(get_set(environment_set).train) * CHUNK
-    flags = (
-        f"--env {environment_set} --algo swat --preset paper --seeds {settings.seeds} "
-        f"--steps {settings.stored_budget(environment_set)} --width {settings.width} --heads {settings.heads} "
-        f"--layers {settings.layers} --feedforward {settings.feedforward} "
-        f"--iteration.random-steps {settings.random_steps} --iteration.capacity {settings.capacity} "
-        f"--td3.learning-rate {settings.learning_rate} --td3.batch-size {settings.batch_size} "
-        f"--log-interval {chunk} --checkpoint-interval {settings.log_interval(environment_set) * 4}"
+    run_dir = out / "runs" / f"{environment_set}-swat_jax"
+    steps = settings.stored_budget(environment_set)
+    return RunSpec(
+        settings.config(PRESETS["paper"], environment_set, run_dir, steps=steps, log_interval=chunk)
     )
-    return RunSpec(out / "runs" / f"{environment_set}-swat_jax", tuple(flags.split()))
 
 
 @dataclasses.dataclass(frozen=True)

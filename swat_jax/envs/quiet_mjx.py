@@ -2,7 +2,7 @@
 
 mujoco-mjx 3.17 ``print``s "Failed to import warp: ..." and "Failed to import mujoco_warp: ..." to
 standard output when its optional Warp backend is not installed, which would put those lines in front
-of ``--help`` and into ``--json`` output. swat_jax needs Warp only for ``--physics warp``, where
+of ``--help`` and into ``--json`` output. swat_jax needs Warp only for ``--envs.physics warp``, where
 ``envs/physics.py`` imports it and names the fix if it is missing, so those two notices are dropped;
 anything else the import prints is passed on to standard error.
 Every module of swat_jax imports MJX from here.

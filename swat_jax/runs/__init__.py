@@ -2,7 +2,7 @@
 experiment a config builds (the train/eval/export commands are swat_jax/train.py, eval.py, export.py)."""
 
 from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
-from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
+from swat_jax.runs.config import PRESETS, ConfigError, EnvConfig, NetworkSizes, TrainConfig, load_config
 from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.trained import TrainedPolicy, load_policy
 
@@ -12,7 +12,9 @@ __all__ = [
     "CheckpointInfo",
     "Checkpoints",
     "ConfigError",
+    "EnvConfig",
     "Experiment",
+    "NetworkSizes",
     "TrainConfig",
     "TrainedPolicy",
     "load_config",

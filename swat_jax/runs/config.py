@@ -1,14 +1,17 @@
 """The frozen, typed configuration of a training run, its presets and its JSON form (``config.json``).
 
 ``python -m swat_jax.train`` parses a :class:`TrainConfig` with tyro, so every field's docstring is its
-``--help`` line. A preset is a whole :class:`TrainConfig` used as the defaults that flags override:
+``--help`` line; the network sizes and the environments' switches are groups of their own
+(``--network.*``, ``--envs.*``), as the iteration's and TD3's are. A preset is a whole :class:`TrainConfig`
+used as the defaults that flags override, written as its differences from the ``paper`` preset, which is
+TrainConfig's defaults:
 
 - ``paper``: the paper's and the reference code's: one environment copy per task, the reference code's
   lock-step rounds (:attr:`~swat_jax.td3.iteration.IterationConfig.rounds`) and the ``original`` update
   schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100 steps per
   task, task after task takes (counted steps summed over tasks) / tasks updates on batches of 100 from
   its own replay, one Adam step per counted environment step.
-- ``intended``: the ``paper`` preset with every quirk of the original code fixed (:data:`FIXES`): the
+- ``intended``: the ``paper`` preset with every quirk of the original code fixed (:func:`fixed`): the
   paper's intended method on the original's schedule.
 - ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
   from every task), with a larger batch and fewer updates per environment step, for wall clock.
@@ -72,6 +75,83 @@ def host_only(default: Any) -> Any:
 
 
 @dataclasses.dataclass(frozen=True)
+class NetworkSizes:
+    """The actor's and critic's sizes (``--network.*``); None keeps the algorithm's."""
+
+    width: int | None = None
+    """Transformer model width; None keeps the algorithm's (128)."""
+    heads: int | None = None
+    """Attention heads; None keeps the algorithm's (2)."""
+    layers: int | None = None
+    """Transformer layers; None keeps the algorithm's (3)."""
+    feedforward: int | None = None
+    """Feed-forward width of each layer; None keeps the algorithm's (256)."""
+    max_traversal_positions: int | None = None
+    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps the original code's 15."""
+    max_children: int | None = None
+    """SMP: child slots per limb, at least the most children of any limb; None takes that most over the training bodies, as the original code does (Hopper++ 1, Walker++ and Cheetah++ 2, the others 4)."""
+    smp_hidden: int | None = None
+    """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
+    reference_inorder: bool = True
+    """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
+
+    def __post_init__(self) -> None:
+        for name in (*NETWORK_SIZES, "smp_hidden"):
+            if getattr(self, name) is not None:
+                require_positive(f"--network.{name.replace('_', '-')}", getattr(self, name))
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """How the bodies are simulated and observed (``--envs.*``)."""
+
+    copies: int = 1
+    """Parallel environment copies per body."""
+    variants: int = 0
+    """Train on variants: copy j of each body runs variant j mod K of K variants drawn from it (its limbs' lengths, radii, masses, joint ranges, damping and gears scaled; docs/bodies-and-environments.md), fixed for the run, all through one program per body; at most --envs.copies. 0: the bodies themselves."""
+    variation: float = 0.2
+    """With --envs.variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]; in [0, 1)."""
+    variant_seed: int = 0
+    """With --envs.variants: seed of the variants' draw (python -m swat_jax.morphology variants BODY -k K --variation X --seed S writes the same bodies)."""
+    physics: Physics = "auto"
+    """Where the physics runs: c (MuJoCo's C library, called from the jitted program: nothing to compile, the fastest on a CPU), jax (MJX compiled into the XLA program: for GPUs), warp (MuJoCo Warp kernels called from it; needs pip install -e '.[warp]'), or auto: c where JAX runs on the CPU, jax on a GPU (docs/training.md, "Physics")."""
+    torso_relative_x: bool = False
+    """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
+    stale_kinematics: bool = True
+    """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --envs.physics jax, c or auto); off: kinematics of the state after the step (the fast preset)."""
+
+    def __post_init__(self) -> None:
+        require_positive("--envs.copies", self.copies)
+        if not 0 <= self.variants <= self.copies:
+            raise ConfigError(
+                f"--envs.variants must be 0 (off) or a number up to --envs.copies ({self.copies}): each copy "
+                f"runs one variant; got {self.variants}"
+            )
+        try:
+            self.variant_draw()
+        except ValueError:
+            raise ConfigError(
+                f"--envs.variation must lie in [0, 1) (factors stay positive), got {self.variation}"
+            ) from None
+        if self.physics not in PHYSICS:
+            raise ConfigError(f"--envs.physics must be one of {', '.join(PHYSICS)}, got {self.physics!r}")
+        if self.variants and self.physics == "warp":
+            raise ConfigError(
+                "--envs.variants runs on --envs.physics c, jax or auto (the variants' numbers are inputs of "
+                "the step; Warp's model is not)"
+            )
+        if self.stale_kinematics and self.physics == "warp":
+            raise ConfigError(
+                "--envs.stale-kinematics reads what MuJoCo's step leaves, which Warp does not keep; add "
+                "--envs.no-stale-kinematics or use --envs.physics c, jax or auto"
+            )
+
+    def variant_draw(self) -> Variation:
+        """How the run's variants are drawn (--envs.variation, --envs.variant-seed); ValueError for a bad spread."""
+        return Variation(self.variation, self.variant_seed)
+
+
+@dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022)."""
 
@@ -88,49 +168,23 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = host_only("paper")
-    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds and 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration, quirks fixed: chosen by time to return on a CPU, docs/training.md)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds and 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (paper with the quirks fixed, 4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
     seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
     """Independent runs trained in one program, seeds seed .. seed+seeds-1 (a batch axis of the whole training state)."""
     steps: int = host_only(10_000_000)
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
-    copies: int = 1
-    """Parallel environment copies per body."""
-    variants: int = 0
-    """Train on variants: copy j of each body runs variant j mod K of K variants drawn from it (its limbs' lengths, radii, masses, joint ranges, damping and gears scaled; docs/bodies-and-environments.md), fixed for the run, all through one program per body; at most --copies. 0: the bodies themselves."""
-    variation: float = 0.2
-    """With --variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]; in [0, 1)."""
-    variant_seed: int = 0
-    """With --variants: seed of the variants' draw (python -m swat_jax.morphology variants BODY -k K --variation X --seed S writes the same bodies)."""
-    iteration: IterationConfig = dataclasses.field(default_factory=lambda: IterationConfig(rounds=True))
+    envs: EnvConfig = dataclasses.field(default_factory=EnvConfig)
+    """How the bodies are simulated and observed: copies, variants, physics, the original's observation quirks."""
+    network: NetworkSizes = dataclasses.field(default_factory=NetworkSizes)
+    """The sizes of --algo's networks and the traversal of its positional embedding."""
+    iteration: IterationConfig = dataclasses.field(default_factory=IterationConfig)
     """One jitted iteration: per-copy steps collected (chunk), updates and their schedule, random steps, noise, replay capacity."""
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
-    width: int | None = None
-    """Transformer model width; None keeps the algorithm's (128)."""
-    heads: int | None = None
-    """Attention heads; None keeps the algorithm's (2)."""
-    layers: int | None = None
-    """Transformer layers; None keeps the algorithm's (3)."""
-    feedforward: int | None = None
-    """Feed-forward width of each layer; None keeps the algorithm's (256)."""
-    max_traversal_positions: int | None = None
-    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps the original code's 15."""
-    max_children: int | None = None
-    """SMP: child slots per limb, at least the most children of any limb; None takes that most over the training bodies, as the original code does (Hopper++ 1, Walker++ and Cheetah++ 2, the others 4)."""
-    smp_hidden: int | None = None
-    """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     limb_buckets: int = 3
     """With --iteration.schedule all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
-    physics: Physics = "auto"
-    """Where the physics runs: c (MuJoCo's C library, called from the jitted program: nothing to compile, the fastest on a CPU), jax (MJX compiled into the XLA program: for GPUs), warp (MuJoCo Warp kernels called from it; needs pip install -e '.[warp]'), or auto: c where JAX runs on the CPU, jax on a GPU (docs/training.md, "Physics")."""
-    torso_relative_x: bool = False
-    """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
-    reference_inorder: bool = True
-    """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
-    stale_kinematics: bool = True
-    """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --physics jax); off: kinematics of the state after the step (the fast preset)."""
     log_interval: int = host_only(10_000)
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
     eval_interval: int = host_only(0)
@@ -145,14 +199,23 @@ class TrainConfig:
     """Run directory; empty means runs/<env>-<algo>-seed<seed>."""
 
     def __post_init__(self) -> None:
+        self._resolve_paths()
+        self._check_run()
+        self._check_training()
+        try:
+            self.network_config()
+        except ValueError as error:
+            raise ConfigError(f"network sizes: {error}") from error
+
+    def _resolve_paths(self) -> None:
+        """``env``, ``bodies`` and ``init_from`` as absolute paths where they are paths (benchmark names stay
+        names), so the run resumes and evaluates from anywhere."""
         try:
             environment_set = get_set(self.env)
         except ValueError as error:
             raise ConfigError(f"--env: {error}") from error
         if SETS.get(environment_set.name) is not environment_set:
-            # A folder of MJCF files: stored absolute so the run resumes and evaluates from anywhere.
             object.__setattr__(self, "env", str(Path(self.env).expanduser().resolve()))
-        # Paths stored absolute for the same reason; benchmark names stay names.
         object.__setattr__(self, "bodies", tuple(_absolute_if_path(body) for body in self.bodies))
         if self.init_from:
             object.__setattr__(self, "init_from", str(Path(self.init_from).expanduser().resolve()))
@@ -160,14 +223,24 @@ class TrainConfig:
             raise ConfigError(
                 f"--split {self.split}: {self.env} has no {self.split} bodies; use another --split or --bodies"
             )
+
+    def _check_run(self) -> None:
+        """The run's own fields: names, counts and intervals."""
         if self.init_seed_index < 0:
             raise ConfigError(f"--init-seed-index must be 0 or more, got {self.init_seed_index}")
         if self.algo not in NAMED_VARIANTS:
             raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
         if self.preset not in PRESET_NAMES:
             raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
-        for name in ("steps", "seeds", "copies", "log_interval", "checkpoint_interval", "keep_checkpoints"):
+        for name in ("steps", "seeds", "log_interval", "checkpoint_interval", "keep_checkpoints"):
             require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
+        require_positive("--eval-episodes", self.eval_episodes)
+        require_positive("--limb-buckets", self.limb_buckets)
+        if self.eval_interval < 0:
+            raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
+
+    def _check_training(self) -> None:
+        """The iteration and TD3 settings (their dataclasses live below this layer and raise no ConfigError)."""
         for name in ("chunk", "updates", "capacity"):
             require_positive(f"--iteration.{name}", getattr(self.iteration, name))
         if self.iteration.schedule not in SCHEDULES:
@@ -178,6 +251,21 @@ class TrainConfig:
             raise ConfigError(
                 "--iteration.rounds sets each body's updates from the counted steps, which only the original "
                 "schedule takes; add --iteration.schedule original or --iteration.no-rounds"
+            )
+        noise = (self.iteration.exploration_noise, self.iteration.exploration_noise_max)
+        if min(value for value in noise if value is not None) < 0:
+            raise ConfigError(
+                f"--iteration.exploration-noise and --iteration.exploration-noise-max are standard deviations, "
+                f"0 or more; got {noise[0]} and {noise[1]}"
+            )
+        if self.iteration.random_steps < 0:
+            raise ConfigError(
+                f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"
+            )
+        if self.iteration.capacity < self.envs.copies:
+            raise ConfigError(
+                f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
+                f"(--envs.copies {self.envs.copies})"
             )
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
@@ -190,67 +278,19 @@ class TrainConfig:
             raise ConfigError(
                 f"--td3.value-min ({self.td3.value_min}) must be below --td3.value-max ({self.td3.value_max})"
             )
-        require_positive("--eval-episodes", self.eval_episodes)
-        require_positive("--limb-buckets", self.limb_buckets)
-        if self.smp_hidden is not None:
-            require_positive("--smp-hidden", self.smp_hidden)
-        if self.eval_interval < 0:
-            raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
-        noise = (self.iteration.exploration_noise, self.iteration.exploration_noise_max)
-        if min(value for value in noise if value is not None) < 0:
-            raise ConfigError(
-                f"--iteration.exploration-noise and --iteration.exploration-noise-max are standard deviations, "
-                f"0 or more; got {noise[0]} and {noise[1]}"
-            )
-        if self.iteration.random_steps < 0:
-            raise ConfigError(
-                f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"
-            )
-        if self.iteration.capacity < self.copies:
-            raise ConfigError(
-                f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
-                f"(--copies {self.copies})"
-            )
-        if not 0 <= self.variants <= self.copies:
-            raise ConfigError(
-                f"--variants must be 0 (off) or a number up to --copies ({self.copies}): each copy runs one "
-                f"variant; got {self.variants}"
-            )
-        try:
-            self.variant_draw()
-        except ValueError:
-            raise ConfigError(
-                f"--variation must lie in [0, 1) (factors stay positive), got {self.variation}"
-            ) from None
-        if self.physics not in PHYSICS:
-            raise ConfigError(f"--physics must be one of {', '.join(PHYSICS)}, got {self.physics!r}")
-        if self.variants and self.physics == "warp":
-            raise ConfigError(
-                "--variants runs on --physics c, jax or auto (the variants' numbers are inputs of the step; "
-                "Warp's model is not)"
-            )
-        if self.stale_kinematics and self.physics == "warp":
-            raise ConfigError(
-                "--stale-kinematics reads what MuJoCo's step leaves, which Warp does not keep; add "
-                "--no-stale-kinematics or use --physics c, jax or auto"
-            )
-        try:
-            self.network()
-        except ValueError as error:
-            raise ConfigError(f"network sizes: {error}") from error
 
-    def network(self) -> NetworkConfig:
-        """The network of ``algo`` with the sizes given here."""
-        sizes = {name: getattr(self, name) for name in NETWORK_SIZES if getattr(self, name) is not None}
-        if self.algo == "smp" and self.max_children is None:
+    def network_config(self) -> NetworkConfig:
+        """The network of ``algo`` with the sizes of ``network``."""
+        sizes = {
+            name: getattr(self.network, name)
+            for name in NETWORK_SIZES
+            if getattr(self.network, name) is not None
+        }
+        if self.algo == "smp" and self.network.max_children is None:
             sizes["max_children"] = _most_children(self.training_bodies())
-        if self.smp_hidden is not None:
-            sizes.update(up_hidden=(self.smp_hidden,) * 2, down_hidden=(self.smp_hidden,) * 2)
+        if self.network.smp_hidden is not None:
+            sizes.update(up_hidden=(self.network.smp_hidden,) * 2, down_hidden=(self.network.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
-
-    def variant_draw(self) -> Variation:
-        """How the run's variants are drawn (--variation, --variant-seed); ValueError for a bad spread."""
-        return Variation(self.variation, self.variant_seed)
 
     def training_bodies(self) -> tuple[str, ...]:
         """The bodies this run trains on: ``bodies`` if given, else ``split`` of ``env`` (names, or MJCF
@@ -271,44 +311,41 @@ class TrainConfig:
 
     def structure_fix(self, mismatch: StructureMismatch) -> str:
         """The flag that lets this run's network take bodies it refused, and the value it needs."""
-        flag = f"--{mismatch.setting.replace('_', '-')}"
-        return f"train with {flag} {mismatch.needed} or more (this run has {getattr(self.network(), mismatch.setting)})"
+        flag = f"--network.{mismatch.setting.replace('_', '-')}"
+        return f"train with {flag} {mismatch.needed} or more (this run has {getattr(self.network_config(), mismatch.setting)})"
 
     def steps_per_iteration(self, num_bodies: int) -> int:
         """Environment steps, summed over bodies, of one iteration."""
-        return num_bodies * self.copies * self.iteration.chunk
+        return num_bodies * self.envs.copies * self.iteration.chunk
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
 
 
-FIXES: dict[str, bool] = {"torso_relative_x": True, "reference_inorder": False, "stale_kinematics": False}
-"""The switches of the original code's quirks, each set to the fix: what the paper intends (docs/fidelity.md)."""
+def fixed(config: TrainConfig) -> TrainConfig:
+    """``config`` with every quirk of the original code fixed: what the paper intends (docs/fidelity.md)."""
+    return dataclasses.replace(
+        config,
+        envs=dataclasses.replace(config.envs, torso_relative_x=True, stale_kinematics=False),
+        network=dataclasses.replace(config.network, reference_inorder=False),
+    )
 
+
+PAPER = TrainConfig()
+"""The base every preset differs from: the paper's and the reference code's computation (TrainConfig's defaults)."""
 PRESETS: dict[str, TrainConfig] = {
-    "paper": TrainConfig(
-        preset="paper",
-        copies=1,
-        iteration=IterationConfig(chunk=100, updates=100, schedule="original", rounds=True),
-        torso_relative_x=False,
-        reference_inorder=True,
-        stale_kinematics=True,
-    ),
-    "intended": TrainConfig(
-        preset="intended",
-        copies=1,
-        iteration=IterationConfig(chunk=100, updates=100, schedule="original", rounds=True),
-        **FIXES,
-    ),
-    "fast": TrainConfig(
+    "paper": PAPER,
+    "intended": dataclasses.replace(fixed(PAPER), preset="intended"),
+    "fast": dataclasses.replace(
+        fixed(PAPER),
         preset="fast",
-        copies=4,
-        iteration=IterationConfig(chunk=16, updates=128, schedule="all_tasks"),
-        td3=TD3Config(batch_size=100),
-        **FIXES,
+        envs=dataclasses.replace(fixed(PAPER).envs, copies=4),
+        iteration=dataclasses.replace(
+            PAPER.iteration, chunk=16, updates=128, schedule="all_tasks", rounds=False
+        ),
     ),
 }
-"""The defaults each preset gives every flag."""
+"""The defaults each preset gives every flag: the paper's, and each other preset's differences from it."""
 
 
 @functools.cache
@@ -323,6 +360,33 @@ def _absolute_if_path(body: str) -> str:
     return str(path.resolve()) if path.suffix.lower() == ".xml" or path.exists() else body
 
 
+def flag_values(config: Any, prefix: str = "--") -> dict[str, Any]:
+    """Every value of a config (a dataclass) by its flag (``--envs.copies``), nested groups included."""
+    values = {}
+    for field in dataclasses.fields(config):
+        value, flag = getattr(config, field.name), prefix + field.name.replace("_", "-")
+        values.update(flag_values(value, flag + ".") if dataclasses.is_dataclass(value) else {flag: value})
+    return values
+
+
+def config_flags(config: TrainConfig) -> list[str]:
+    """``python -m swat_jax.train`` flags that build ``config``: its preset, then every value that differs
+    from the preset's (the short form of a config for reports and printed commands)."""
+    preset = flag_values(PRESETS[config.preset])
+    flags = ["--preset", config.preset]
+    for flag, value in flag_values(config).items():
+        if value == preset[flag]:
+            continue
+        if isinstance(value, bool):
+            group, _, name = flag[2:].rpartition(".")
+            flags.append(f"--{group + '.' if group else ''}{'' if value else 'no-'}{name}")
+        elif isinstance(value, tuple):
+            flags += [flag, *map(str, value)]
+        else:
+            flags += [flag, str(value)]
+    return flags
+
+
 def load_config(path: str | Path) -> TrainConfig:
     """Read a run's ``config.json``; ConfigError names the file and the field when it does not fit."""
     path = Path(path)
@@ -332,7 +396,27 @@ def load_config(path: str | Path) -> TrainConfig:
         raise ConfigError(f"{path}: no such file; is this a swat_jax run directory?") from error
     except (OSError, json.JSONDecodeError) as error:
         raise ConfigError(f"{path}: not readable JSON ({error}); restore it or start a new run") from error
-    return _build(TrainConfig, fields, path)
+    return _build(TrainConfig, _regrouped(fields), path)
+
+
+REGROUPED = {
+    **{name: "network" for name in (*NETWORK_SIZES, "smp_hidden", "reference_inorder")},
+    **{name: "envs" for name in ("copies", "variants", "variation", "variant_seed", "physics")},
+    **{name: "envs" for name in ("torso_relative_x", "stale_kinematics")},
+}
+"""The fields that a config.json of swat_jax before December 2026 holds at its top level, by their group."""
+
+
+def _regrouped(fields: Any) -> Any:
+    """``fields`` of a config.json with the top-level fields of :data:`REGROUPED` moved into their groups, so
+    runs written before the groups existed still evaluate, export and plot."""
+    if not isinstance(fields, dict):
+        return fields
+    fields = dict(fields)
+    for name, group in REGROUPED.items():
+        if name in fields and isinstance(fields.get(group, {}), dict):
+            fields[group] = {**fields.get(group, {}), name: fields.pop(name)}
+    return fields
 
 
 def _build(cls: type, fields: Any, path: Path) -> Any:

@@ -51,9 +51,11 @@ class Experiment:
     def build(cls, config: TrainConfig, devices: Sequence[jax.Device] | None = None) -> Experiment:
         """Load the bodies, build the networks and lay the run out over ``devices`` (default: every device);
         ConfigError if the network cannot take the bodies."""
-        network = config.network()
+        network = config.network_config()
         try:
-            tasks = task_set(config.training_bodies(), network, reference_inorder=config.reference_inorder)
+            tasks = task_set(
+                config.training_bodies(), network, reference_inorder=config.network.reference_inorder
+            )
         except StructureMismatch as error:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
@@ -61,17 +63,17 @@ class Experiment:
         env = make_env(
             config,
             tasks.bodies,
-            config.copies,
+            config.envs.copies,
             config.seeds,
             lock_step=config.iteration.rounds,
-            variants=config.variants,
-            variation=config.variant_draw(),
+            variants=config.envs.variants,
+            variation=config.envs.variant_draw(),
         )
         if config.init_from:
             check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(network, env.observation_features, config.td3.atoms)
         devices = jax.devices() if devices is None else devices
-        layout = placement(config.seeds, env.num_bodies, config.copies, devices)
+        layout = placement(config.seeds, env.num_bodies, config.envs.copies, devices)
         # A bucket gathers tasks across the task axis: only where that axis is not split over devices.
         buckets = (
             limb_buckets([body.num_limbs for body in tasks.bodies], config.limb_buckets)
@@ -220,9 +222,9 @@ def make_env(
     j mod K drawn by ``variation`` (default: spread 0.2, seed 0): the variants are written to a temporary folder, compiled, and the
     folder removed (the draw is a function of the body, K, the spread and the seed)."""
     settings = dict(
-        torso_relative_x=config.torso_relative_x,
-        stale_kinematics=config.stale_kinematics,
-        physics=resolve_physics(config.physics),
+        torso_relative_x=config.envs.torso_relative_x,
+        stale_kinematics=config.envs.stale_kinematics,
+        physics=resolve_physics(config.envs.physics),
         seeds=seeds,
         lock_step=lock_step,
     )

@@ -71,7 +71,7 @@ def check_transfer(config: TrainConfig, observation_features: int) -> None:
         info = newest_info(source_dir, checkpoints)
     finally:
         checkpoints.close()
-    theirs, ours = source.network(), config.network()
+    theirs, ours = source.network_config(), config.network_config()
     problems = [
         f"{field.name} {getattr(theirs, field.name)!r} there, {getattr(ours, field.name)!r} here"
         for field in dataclasses.fields(theirs)
@@ -137,9 +137,9 @@ class TrainedPolicy:
         try:
             return task_set(
                 loaded,
-                self.config.network(),
+                self.config.network_config(),
                 max_limbs=max_limbs,
-                reference_inorder=self.config.reference_inorder,
+                reference_inorder=self.config.network.reference_inorder,
             )
         except StructureMismatch as error:
             raise ValueError(
@@ -163,6 +163,6 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         info = newest_info(run_dir, checkpoints)
     finally:
         checkpoints.close()
-    actor, _ = make_actor_critic(config.network(), info.observation_features)
+    actor, _ = make_actor_critic(config.network_config(), info.observation_features)
     one_seed = {"actor": jax.eval_shape(actor.init, jax.random.PRNGKey(0))}
     return TrainedPolicy(config, actor, restore_networks(run_dir, one_seed)["actor"], info)

@@ -60,8 +60,8 @@ class IterationConfig:
     """Environment steps per copy collected per iteration."""
     updates: int = 100
     """TD3 updates per iteration: per body with the original schedule (chunk x copies of them give one Adam step per environment step, as the reference code), in all with all_tasks. With rounds, the counted steps set them instead."""
-    rounds: bool = False
-    """The original code's lock-step rounds (needs the original schedule): a round lasts until every copy has ended its first episode of the round, then all copies restart; only the steps of those first episodes count, and each body takes (counted steps summed over bodies) / bodies updates, so the copies that ended early store more transitions than are updated on. The random phase then lasts random_steps x bodies counted steps, as the original's."""
+    rounds: bool = True
+    """The original code's lock-step rounds (on by default, as every default here is the paper's; needs the original schedule): a round lasts until every copy has ended its first episode of the round, then all copies restart; only the steps of those first episodes count, and each body takes (counted steps summed over bodies) / bodies updates, so the copies that ended early store more transitions than are updated on. The random phase then lasts random_steps x bodies counted steps, as the original's."""
     schedule: Schedule = "original"
     """Update order after collecting. original (the reference code's): body after body, each takes its updates on batches from its own replay alone, one Adam step each, with the delayed actor step in the first of every policy_delay of them. all_tasks: each update is one Adam step on the mean loss over a batch from every body."""
     random_steps: int = 10_000
