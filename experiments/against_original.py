@@ -34,7 +34,6 @@ original's own checkpoint restores the networks and replay but starts its ``stat
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import math
@@ -43,8 +42,10 @@ import shlex
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.original.curves import (
@@ -60,10 +61,10 @@ from experiments.original.curves import (
 from experiments.original.returns import SIGNIFICANCE, final_returns, time_to_reach, welch
 from experiments.original.runs import (
     ORIGINAL,
-    ORIGINAL_SET_FLAGS,
     OURS,
     SETTINGS,
     Original,
+    ScaleName,
     Settings,
     original_runs,
     ours,
@@ -229,80 +230,54 @@ def report(
 # The command
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.against_original",
-        description=__doc__.split("\n\n")[0],
-        epilog="A partial run resumes: the same command goes on where it stopped.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument(
-        "--sets", nargs="+", metavar="SET",
-        help="environment sets to compare (default hopper walker; with --speed hopper walker animal_walkers); "
-        f"the original can train {', '.join(ORIGINAL_SET_FLAGS)}",
-    )  # fmt: skip
-    parser.add_argument(
-        "--scale", choices=tuple(SETTINGS), default="small",
-        help="micro (a smoke test: 2 seeds, 600/800 steps), small (default: width-32 one-layer SWAT, 4 seeds, 24K/30K steps; about 80 min for Hopper++ "
-        "and Walker++ on 2 CPU cores) or paper (the paper's sizes, 5 seeds, 10M steps)",
-    )  # fmt: skip
-    parser.add_argument("--seeds", type=int, help="seeds of each implementation (default: the scale's)")
-    parser.add_argument(
-        "--steps",
-        type=int,
-        help="environment steps per seed on every set, summed over bodies (default: the scale's)",
-    )
-    parser.add_argument(
-        "--only", choices=("original", "swat_jax"), help="train one side only (the report shows what exists)"
-    )
-    parser.add_argument(
-        "--original-python", type=Path, default=Path("/tmp/orig-venv/bin/python"),
-        help="python of the original code's venv: mujoco 2.3.3, gym 0.13.1, torch, xmltodict (default /tmp/orig-venv)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--original-tools", type=Path, default=Path(os.environ.get("ORIGINAL_TOOLS", "")),
-        help="the folder with run_trainer.py that runs the original main.py unmodified (default $ORIGINAL_TOOLS)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--parallel", type=int, default=host_cores(),
-        help="original seeds run at once, one torch thread each (default: this machine's cores)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--original-timeout", type=float, default=6 * 3600.0,
-        help="seconds after which an original seed is stopped (default 6 hours)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--out",
-        type=Path,
-        help="the folder of runs, figures and the report; default experiments/results/against_original",
-    )
-    parser.add_argument(
-        "--dry-run",
-        action="store_true",
-        help="write swat_jax's config file, print both sides' commands and stop",
-    )
-    parser.add_argument(
-        "--speed", action="store_true",
-        help="measure throughput at the paper's sizes (both sides, --sets, default hopper walker animal_walkers) "
-        "and print a Markdown table instead of training curves",
-    )  # fmt: skip
-    parser.add_argument(
-        "--speed-seconds", type=float, default=120.0,
-        help="--speed: seconds of each original trainer run (default 120)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--speed-iterations", type=int, default=2,
-        help="--speed: timed iterations of each swat_jax preset, after one warm-up (default 2)",
-    )  # fmt: skip
-    return parser
+Side = Literal["original", "swat_jax"]
+"""One side of the comparison (``--only``)."""
 
 
-def settings_from(args: argparse.Namespace) -> Settings:
+@dataclasses.dataclass(frozen=True)
+class AgainstOriginalCommand:
+    """swat_jax's paper preset beside the original SWAT trainer: the same learning curves, and the wall clock
+    of each. A partial run resumes: the same command goes on where it stopped."""
+
+    sets: tuple[str, ...] = ()
+    """Environment sets to compare (none: hopper walker; with --speed hopper walker animal_walkers); the original trains hopper, walker, cheetah, humanoid, their unions and animal_walkers."""
+    scale: ScaleName = "small"
+    """micro (a smoke test: 2 seeds, 600/800 steps), small (width-32 one-layer SWAT, 4 seeds, 24K/30K steps; about 80 min for Hopper++ and Walker++ on 2 CPU cores) or paper (the paper's sizes, 5 seeds, 10M steps)."""
+    seeds: int | None = None
+    """Seeds of each implementation; None: the scale's."""
+    steps: int | None = None
+    """Environment steps per seed on every set, summed over bodies; None: the scale's."""
+    only: Side | None = None
+    """Train one side only (the report shows what exists)."""
+    original_python: Path = Path("/tmp/orig-venv/bin/python")
+    """Python of the original code's venv: mujoco 2.3.3, gym 0.13.1, torch, xmltodict."""
+    original_tools: Path = dataclasses.field(
+        default_factory=lambda: Path(os.environ.get("ORIGINAL_TOOLS", ""))
+    )
+    """The folder with run_trainer.py that runs the original main.py unmodified (default $ORIGINAL_TOOLS)."""
+    parallel: int = dataclasses.field(default_factory=host_cores)
+    """Original seeds run at once, one torch thread each (default: this machine's cores)."""
+    original_timeout: float = 6 * 3600.0
+    """Seconds after which an original seed is stopped."""
+    out: Path = Path("experiments/results/against_original")
+    """The folder of runs, figures and the report."""
+    dry_run: bool = False
+    """Write swat_jax's config file, print both sides' commands and stop."""
+    speed: bool = False
+    """Measure throughput at the paper's sizes (both sides, --sets) and print a Markdown table instead of training curves."""
+    speed_seconds: float = 120.0
+    """--speed: seconds of each original trainer run."""
+    speed_iterations: int = 2
+    """--speed: timed iterations of each swat_jax preset, after one warm-up."""
+
+
+def settings_from(args: AgainstOriginalCommand, sets: Sequence[str]) -> Settings:
+    """The scale's settings with the command's seeds and steps."""
     settings = SETTINGS[args.scale]
     if args.seeds is not None:
         settings = dataclasses.replace(settings, seeds=args.seeds)
     if args.steps is not None:
-        settings = dataclasses.replace(settings, steps={name: args.steps for name in args.sets})
+        settings = dataclasses.replace(settings, steps={name: args.steps for name in sets})
     if settings.seeds < 1:
         raise GridError(f"--seeds must be 1 or more, got {settings.seeds}")
     return settings
@@ -339,26 +314,26 @@ def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Ori
 def main(argv: list[str] | None = None) -> int:
     enable_caches()
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser().parse_args(argv)
-    out = args.out or Path("experiments/results/against_original")
+    args = tyro.cli(AgainstOriginalCommand, args=argv, prog="python -m experiments.against_original")
+    out = args.out
     original = Original(args.original_python, args.original_tools, args.parallel, args.original_timeout)
-    args.sets = args.sets or (["hopper", "walker", "animal_walkers"] if args.speed else ["hopper", "walker"])
+    sets = args.sets or (("hopper", "walker", "animal_walkers") if args.speed else ("hopper", "walker"))
 
     def work() -> Path | None:
         if args.speed:
             why = original.missing()
             if why:
                 raise GridError(f"cannot run the original trainer: {why}")
-            print(speed_table(args.sets, original, args.speed_seconds, args.speed_iterations))
+            print(speed_table(sets, original, args.speed_seconds, args.speed_iterations))
             return None
-        settings = settings_from(args)
-        for environment_set in args.sets:
+        settings = settings_from(args, sets)
+        for environment_set in sets:
             get_set(environment_set)
         if args.dry_run:
-            print_plan(out, settings, args.sets, original)
+            print_plan(out, settings, sets, original)
             return None
-        run_sets(out, settings, args.sets, original, args.only)
-        return report(out, settings, args.sets, argv, original)
+        run_sets(out, settings, sets, original, args.only)
+        return report(out, settings, sets, argv, original)
 
     return exit_status(work)
 

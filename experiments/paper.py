@@ -24,7 +24,6 @@ summed over its bodies, 1M for fine-tuning, 5 seeds) for a GPU; ``tiny`` (small 
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import datetime
@@ -35,18 +34,20 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
+
+import tyro
 
 from experiments.machine import cpu_model, host_cores, software_versions
 from swat_jax.cli import strict_json
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
-from swat_jax.networks import NAMED_VARIANTS
 from swat_jax.plot import plot_curves
 from swat_jax.runs.checkpoint import Checkpoints
 from swat_jax.runs.config import (
     CONFIG_FILE,
     PRESETS,
+    Algorithm,
     NetworkSizes,
     TrainConfig,
     config_flags,
@@ -57,7 +58,6 @@ from swat_jax.train import INTERRUPTED_STATUS
 
 MAIN_ALGORITHMS = ("swat", "amorpheus", "smp")
 ABLATIONS = ("swat", "swat_no_re", "swat_no_pe", "swat_no_pe_re")
-COMMANDS = ("figure4", "figure5", "figure6", "tables")
 TIMINGS_FILE = "timings.json"
 """Wall clock of each run, kept in OUT across invocations (a resumed run adds its parts)."""
 
@@ -443,45 +443,27 @@ def report(
     return path
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.paper",
-        description=__doc__.split("\n\n")[0],
-        epilog="Runs are kept and resumed: after a Ctrl-C, the same command continues where it stopped.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("command", choices=COMMANDS, help="the figure or table to produce")
-    parser.add_argument(
-        "--scale",
-        choices=tuple(SCALES),
-        default="tiny",
-        help="tiny (default: small networks, 3 seeds, 80K steps per set; about an hour on 2 CPU cores) or "
-        "paper (the paper's settings, 5 seeds, 10M steps per set; for a GPU)",
-    )
-    parser.add_argument(
-        "--sets",
-        nargs="+",
-        metavar="SET",
-        help="environment sets (or MJCF folders) to run; default: the scale's sets for the command",
-    )
-    parser.add_argument(
-        "--algos",
-        nargs="+",
-        metavar="ALGO",
-        choices=tuple(NAMED_VARIANTS),
-        help=f"algorithms to run; default: {', '.join(MAIN_ALGORITHMS)} ({', '.join(ABLATIONS)} for figure6)",
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        help="the folder for runs, figures and reports; default experiments/results/<scale>",
-    )
-    parser.add_argument(
-        "--dry-run",
-        action="store_true",
-        help="write every run's config file (OUT/runs/<run>.json) and print the commands that train them, then stop",
-    )
-    return parser
+Command = Literal["figure4", "figure5", "figure6", "tables"]
+ScaleName = Literal["tiny", "paper"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperCommand:
+    """The paper's experiments as one command each: train the grid, then draw the figure or write the table.
+    Runs are kept and resumed: after a Ctrl-C, the same command continues where it stopped."""
+
+    command: tyro.conf.Positional[Command]
+    """The figure or table to produce."""
+    scale: ScaleName = "tiny"
+    """tiny (small networks, 3 seeds, 80K steps per set; about an hour on 2 CPU cores) or paper (the paper's settings, 5 seeds, 10M steps per set; for a GPU)."""
+    sets: tuple[str, ...] = ()
+    """Environment sets (or MJCF folders) to run; none: the scale's sets for the command."""
+    algos: tuple[Algorithm, ...] = ()
+    """Algorithms to run; none: swat, amorpheus and smp (swat, swat_no_re, swat_no_pe, swat_no_pe_re for figure6)."""
+    out: Path | None = None
+    """The folder for runs, figures and reports; None: experiments/results/<scale>."""
+    dry_run: bool = False
+    """Write every run's config file (OUT/runs/<run>.json) and print the commands that train them, then stop."""
 
 
 def produce(
@@ -499,7 +481,7 @@ def produce(
 def main(argv: list[str] | None = None) -> int:
     enable_caches()
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser().parse_args(argv)
+    args = tyro.cli(PaperCommand, args=argv, prog="python -m experiments.paper")
     scale = SCALES[args.scale]
     sets = args.sets or scale.sets[args.command]
     algorithms = args.algos or (ABLATIONS if args.command == "figure6" else MAIN_ALGORITHMS)

@@ -41,7 +41,6 @@ run that reached its budget is kept, one that stopped part-way resumes from its 
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import datetime
@@ -54,11 +53,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.original.curves import SeedCurves, original_curves, ours_curves
 from experiments.original.returns import Final, final_returns, welch
-from experiments.original.runs import SETTINGS, Settings, original_runs, ours
+from experiments.original.runs import SETTINGS, ScaleName, Settings, original_runs, ours
 from experiments.paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
@@ -387,62 +387,37 @@ def report(
     return path
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.time_to_return",
-        description=__doc__.split("\n\n")[0],
-        epilog="A partial run resumes: the same command goes on where it stopped.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument(
-        "--sets",
-        nargs="+",
-        default=["hopper", "walker"],
-        metavar="SET",
-        help="environment sets (default hopper walker)",
-    )
-    parser.add_argument(
-        "--scale", choices=tuple(SETTINGS), default="small",
-        help="against_original.py's scale: the sizes, hyperparameters and budget of the original's runs (default small)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--candidates", nargs="+", default=list(CANDIDATES), metavar="NAME",
-        help=f"swat_jax configurations to train, of {', '.join(CANDIDATES)} (default all)",
-    )  # fmt: skip
-    parser.add_argument("--seeds", type=int, help="seeds of every configuration (default: the scale's)")
-    parser.add_argument(
-        "--window", type=int, default=3,
-        help="curve points of the trailing mean that must reach R (default 3)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--original-from", type=Path, default=Path("experiments/results/against_original"),
-        help="the folder whose original/<set>-seed<k>/ hold the original's runs (default experiments/results/against_original)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("experiments/results/time_to_return"),
-        help="runs, figures and the report",
-    )
-    parser.add_argument(
-        "--horizon", type=float, default=1.0,
-        help="train swat_jax's candidates for this many times the original's budget; the time to R counts "
-        "past the budget, the final return stays the budget's (default 1)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--dry-run", action="store_true", help="write the runs' config files, print their commands and stop"
-    )
-    parser.add_argument(
-        "--report-only", action="store_true",
-        help="train nothing: write the report from the runs that exist (a candidate without one is left out)",
-    )  # fmt: skip
-    return parser
+@dataclasses.dataclass(frozen=True)
+class TimeToReturnCommand:
+    """Machine seconds per seed for swat_jax's configurations to reach the original trainer's final return.
+    A partial run resumes: the same command goes on where it stopped."""
+
+    sets: tuple[str, ...] = ("hopper", "walker")
+    """Environment sets."""
+    scale: ScaleName = "small"
+    """against_original's scale: the sizes, hyperparameters and budget of the original's runs."""
+    candidates: tuple[str, ...] = tuple(CANDIDATES)
+    """swat_jax configurations to train (names of CANDIDATES: paper, fast, fast-c4-k16-u64-b100, ...; default all)."""
+    seeds: int | None = None
+    """Seeds of every configuration; None: the scale's."""
+    window: int = 3
+    """Curve points of the trailing mean that must reach R."""
+    original_from: Path = Path("experiments/results/against_original")
+    """The folder whose original/<set>-seed<k>/ hold the original's runs."""
+    out: Path = Path("experiments/results/time_to_return")
+    """Runs, figures and the report."""
+    horizon: float = 1.0
+    """Train swat_jax's candidates for this many times the original's budget; the time to R counts past the budget, the final return stays the budget's."""
+    dry_run: bool = False
+    """Write the runs' config files, print their commands and stop."""
+    report_only: bool = False
+    """Train nothing: write the report from the runs that exist (a candidate without one is left out)."""
 
 
 def main(argv: list[str] | None = None) -> int:
     enable_caches()
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser().parse_args(argv)
+    args = tyro.cli(TimeToReturnCommand, args=argv, prog="python -m experiments.time_to_return")
 
     def work() -> Path | None:
         settings = SETTINGS[args.scale]

@@ -22,7 +22,6 @@ Cache states, in this order, each in its own process:
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import os
 import resource
@@ -30,6 +29,8 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+
+import tyro
 
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.workers import Job, in_fresh_process
@@ -97,23 +98,25 @@ def run_child(
     return in_fresh_process(Job(measure, arguments), environment)
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Time from nothing to the first trained iteration, per MJX implementation (--physics jax / warp)."""
+
+    env: str = "animal_walkers"
+    """Environment set."""
+    other_set: str = "hopper"
+    """Set of the Warp 'other set' row."""
+    preset: str = "paper"
+    """Training preset."""
+    physics: tuple[str, ...] = ("jax", "warp")
+    """Implementations."""
+    iterations: int = 2
+    """Timed iterations after the first."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--env", default="animal_walkers", help="environment set (default animal_walkers)")
-    parser.add_argument(
-        "--other-set", default="hopper", help="set of the Warp 'other set' row (default hopper)"
-    )
-    parser.add_argument("--preset", default="paper", help="training preset (default paper)")
-    parser.add_argument(
-        "--physics", nargs="+", default=["jax", "warp"], help="implementations (default both)"
-    )
-    parser.add_argument(
-        "--iterations", type=int, default=2, help="timed iterations after the first (default 2)"
-    )
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.compile_time")
 
     rows = []
     with tempfile.TemporaryDirectory() as scratch:

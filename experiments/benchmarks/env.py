@@ -27,7 +27,7 @@ compile column then shows a cache load); ``SWAT_JAX_COMPILATION_CACHE=0`` gives 
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import multiprocessing
 import os
 import platform
@@ -37,12 +37,13 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model, host_cores, host_memory_gib, software_versions
 from experiments.workers import Job, WorkerError, in_fresh_process
@@ -68,6 +69,38 @@ DISPLAY_NAMES = {
 COMPILE_TARGETS = {"animal_walkers": (60.0, 10.0)}
 """Issue targets, cold and warm seconds to trace and compile the step, on a 2-core machine."""
 GIB = 2**30
+PROG = "python -m experiments.benchmarks.env"
+Physics = Literal["jax", "warp", "c"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Time the multi-task environment step against MuJoCo C alone, and measure its compile time and memory."""
+
+    sets: tuple[str, ...] = DEFAULT_SETS
+    """Environment sets (training bodies)."""
+    copies: tuple[int, ...] = ()
+    """Copies per body, one compilation each (none: 1 16 on CPU, 1 16 64 256 1024 4096 on GPU)."""
+    largest_only_above: int = 10
+    """Sets with more bodies than this run only the largest copy count (CWHH++ compiles for minutes per count); 0 runs every count for every set."""
+    steps: int = 100
+    """Env steps per timed call (one lax.scan)."""
+    physics: Physics = "jax"
+    """The environment's physics: MJX's jax or warp implementation, or MuJoCo C through its host callback."""
+    repeats: int = 3
+    """Timed calls per configuration (median)."""
+    min_gain: float = 1.05
+    """Stop a set's copy sweep once steps/s grows by less than this factor over the previous count."""
+    c_steps: int = 1000
+    """Env steps per body on MuJoCo C."""
+    compile_sets: tuple[str, ...] = ("hopper", "animal_walkers")
+    """Sets whose step is compiled cold and warm."""
+    compile_copies: int = 16
+    """Copies per body for the compile runs."""
+    compile_only: bool = False
+    """Only the cold and warm compile times (not with --no-compile)."""
+    no_compile: tyro.conf.FlagCreatePairsOff[bool] = False
+    """Skip the cold and warm compile times (not with --compile-only)."""
 
 
 def display_name(set_name: str) -> str:
@@ -277,7 +310,7 @@ def copies_for_set(set_name: str, copies: Sequence[int], largest_only_above: int
     return list(copies)
 
 
-def throughput_tables(args: argparse.Namespace, copies: Sequence[int], started: float) -> str:
+def throughput_tables(args: Options, copies: Sequence[int], started: float) -> str:
     """The throughput table (MJX, C, ratio) and the per-configuration compile and memory table."""
     speed = [
         f"| set | bodies x max limbs | copies | physics {args.physics}: steps/s | per core ({host_cores()} cores) "
@@ -323,7 +356,7 @@ def target_text(set_name: str) -> str:
     return "-" if cold is None else f"< {cold:.0f} / < {warm:.0f}"
 
 
-def compile_table(args: argparse.Namespace, started: float) -> str:
+def compile_table(args: Options, started: float) -> str:
     """Cold and warm trace and compile seconds of ``jax.jit(env.step)``, each in a fresh process."""
     lines = [
         "| set | bodies | copies | env build (s) | cold trace (s) | cold compile (s) | cold total (s) "
@@ -349,56 +382,12 @@ def compile_table(args: argparse.Namespace, started: float) -> str:
     return "\n".join(lines)
 
 
-def parse_arguments() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--sets", nargs="+", default=list(DEFAULT_SETS), help="environment sets (training bodies)"
-    )
-    parser.add_argument(
-        "--copies",
-        nargs="+",
-        type=int,
-        help="copies per body, one compilation each (default: 1 16 on CPU, 1 16 64 256 1024 4096 on GPU)",
-    )
-    parser.add_argument(
-        "--largest-only-above",
-        type=int,
-        default=10,
-        help="sets with more bodies than this run only the largest copy count (CWHH++ compiles for "
-        "minutes per count); 0 runs every count for every set",
-    )
-    parser.add_argument("--steps", type=int, default=100, help="env steps per timed call (one lax.scan)")
-    parser.add_argument(
-        "--physics",
-        choices=("jax", "warp", "c"),
-        default="jax",
-        help="the environment's physics: MJX's jax or warp implementation, or MuJoCo C through its host "
-        "callback (default jax)",
-    )
-    parser.add_argument("--repeats", type=int, default=3, help="timed calls per configuration (median)")
-    parser.add_argument(
-        "--min-gain",
-        type=float,
-        default=1.05,
-        help="stop a set's copy sweep once steps/s grows by less than this factor over the previous count",
-    )
-    parser.add_argument("--c-steps", type=int, default=1000, help="env steps per body on MuJoCo C")
-    parser.add_argument(
-        "--compile-sets",
-        nargs="+",
-        default=["hopper", "animal_walkers"],
-        help="sets whose step is compiled cold and warm",
-    )
-    parser.add_argument("--compile-copies", type=int, default=16, help="copies per body for the compile runs")
-    measured = parser.add_mutually_exclusive_group()
-    measured.add_argument("--compile-only", action="store_true", help="only the cold and warm compile times")
-    measured.add_argument("--no-compile", action="store_true", help="skip the cold and warm compile times")
-    return parser.parse_args()
-
-
 def main() -> None:
     enable_caches()
-    args = parse_arguments()
+    args = tyro.cli(Options, prog=PROG)
+    if args.compile_only and args.no_compile:
+        print(f"{PROG}: error: --compile-only and --no-compile exclude each other", file=sys.stderr)
+        sys.exit(2)
     started = time.perf_counter()
     info = in_fresh_process(Job(info_worker))
     copies = args.copies or DEFAULT_COPIES["cpu" if info["platform"] == "cpu" else "gpu"]

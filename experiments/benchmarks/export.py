@@ -19,15 +19,16 @@ and is reported separately; the rate is the median over repeats of calls for at 
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model
 from experiments.timing import first_call_seconds
@@ -53,7 +54,7 @@ def actions_per_second(call: Call, observation: np.ndarray, seconds: float, repe
 
 
 def benchmark(
-    set_name: str, network: str, batches: list[int], seconds: float, repeats: int, folder: Path
+    set_name: str, network: str, batches: Sequence[int], seconds: float, repeats: int, folder: Path
 ) -> tuple[dict[str, object], list[dict[str, float]]]:
     """Export a random-parameter actor for the set and time both calls at every batch size."""
     names = get_set(set_name).split("all")
@@ -105,27 +106,25 @@ def benchmark(
     return setup, results
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Time an exported policy file (swat_jax.export) against the in-process jitted actor it was made from."""
+
+    set: str = "cwhh"
+    """Environment set whose bodies the file holds."""
+    network: str = "swat"
+    """Network variant, any name network_config accepts."""
+    batches: tuple[int, ...] = (1, 16, 256, 4096)
+    """Observations per call."""
+    seconds: float = 1.0
+    """Least seconds of calls per measurement."""
+    repeats: int = 3
+    """Measurements per rate (median)."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--set", default="cwhh", help="environment set whose bodies the file holds (default cwhh)"
-    )
-    parser.add_argument(
-        "--network", default="swat", help="network variant, any name network_config accepts (default swat)"
-    )
-    parser.add_argument(
-        "--batches",
-        type=int,
-        nargs="+",
-        default=[1, 16, 256, 4096],
-        help="observations per call (default 1 16 256 4096)",
-    )
-    parser.add_argument(
-        "--seconds", type=float, default=1.0, help="least seconds of calls per measurement (default 1)"
-    )
-    parser.add_argument("--repeats", type=int, default=3, help="measurements per rate (median, default 3)")
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.export")
 
     with tempfile.TemporaryDirectory() as folder:
         setup, results = benchmark(

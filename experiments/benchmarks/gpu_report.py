@@ -30,7 +30,6 @@ few steps, a width-16 one-layer SWAT::
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import signal
 import subprocess
@@ -41,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tyro
 
 from experiments.benchmarks.env import (
     c_steps_per_second_on_cores,
@@ -141,6 +141,30 @@ TINY = ReportSettings(
         "--iteration.capacity", "2000", "--td3.batch-size", "8", "--log-interval", "60",
     ),
 )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """The GPU report: the figures that "accelerated" rests on, in one command, as JSON and Markdown."""
+
+    out: Path
+    """Folder for report.json and report.md."""
+    tiny: bool = False
+    """CPU-sized: hopper, copies 1 2, a few steps, tiny SWAT."""
+    sets: tuple[str, ...] | None = None
+    """Environment sets (None: hopper animal_walkers cwhh, or --tiny's)."""
+    copies: tuple[int, ...] | None = None
+    """Copies per body (None: 1 16 256 2048, or --tiny's)."""
+    update_sets: tuple[str, ...] | None = None
+    """Sets whose update is timed (None: animal_walkers cwhh, or --tiny's)."""
+    budget: float | None = None
+    """Seconds the report may take (None: 420, or --tiny's)."""
+    train_set: str | None = None
+    """Set of the time-to-return runs (None: hopper)."""
+    train_presets: tuple[str, ...] | None = None
+    """Presets trained (None: paper fast, or --tiny's; none given: no training)."""
+    train_seconds: float | None = None
+    """Wall seconds of each training run (None: 90, or --tiny's)."""
 
 
 def update_worker(
@@ -460,7 +484,7 @@ def write_report(report: dict[str, Any], folder: Path) -> list[Path]:
     return [json_path, markdown_path]
 
 
-def settings_from(args: argparse.Namespace) -> ReportSettings:
+def settings_from(args: Options) -> ReportSettings:
     """FULL or TINY, with the options given on the command line."""
     settings = TINY if args.tiny else FULL
     chosen = {
@@ -469,53 +493,15 @@ def settings_from(args: argparse.Namespace) -> ReportSettings:
         "update_sets": args.update_sets,
         "budget_s": args.budget,
         "train_set": args.train_set,
-        "train_presets": tuple(args.train_presets) if args.train_presets is not None else None,
+        "train_presets": args.train_presets,
         "train_seconds": args.train_seconds,
     }
     return dataclasses.replace(settings, **{key: value for key, value in chosen.items() if value is not None})
 
 
-def parse_arguments() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, help="folder for report.json and report.md")
-    parser.add_argument(
-        "--tiny", action="store_true", help="CPU-sized: hopper, copies 1 2, a few steps, tiny SWAT"
-    )
-    parser.add_argument(
-        "--sets", nargs="+", type=str, help=f"environment sets (default {' '.join(FULL.sets)})"
-    )
-    parser.add_argument(
-        "--copies", nargs="+", type=int, help=f"copies per body (default {' '.join(map(str, FULL.copies))})"
-    )
-    parser.add_argument(
-        "--update-sets",
-        nargs="*",
-        type=str,
-        help=f"sets whose update is timed (default {' '.join(FULL.update_sets)})",
-    )
-    parser.add_argument(
-        "--budget", type=float, help=f"seconds the report may take (default {FULL.budget_s:.0f})"
-    )
-    parser.add_argument("--train-set", help=f"set of the time-to-return runs (default {FULL.train_set})")
-    parser.add_argument(
-        "--train-presets",
-        nargs="*",
-        help=f"presets trained (default {' '.join(FULL.train_presets)}; none: no training)",
-    )
-    parser.add_argument(
-        "--train-seconds",
-        type=float,
-        help=f"wall seconds of each training run (default {FULL.train_seconds:.0f})",
-    )
-    args = parser.parse_args()
-    if args.out is None:
-        parser.error("--out is required")
-    return args
-
-
 def main() -> None:
     enable_caches()
-    args = parse_arguments()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.gpu_report")
     report = measure_report(settings_from(args), f"python {' '.join(sys.argv)}")
     paths = write_report(report, args.out)
     print(markdown(report))

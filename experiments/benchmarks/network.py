@@ -11,13 +11,14 @@ relative to AMORPHEUS from the same run.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model
 from experiments.timing import median_seconds
@@ -73,12 +74,19 @@ def benchmark_set(set_name: str, features: int, batch: int, repeats: int) -> tup
     return structures, results
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Time the paper-sized SWAT, AMORPHEUS and SMP actor and critic on whole environment sets."""
+
+    repeats: int = 5
+    """Timed calls per measurement (median)."""
+    batch: int = 100
+    """Observations per task."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (median)")
-    parser.add_argument("--batch", type=int, default=100, help="observations per task")
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.network")
 
     print(f"CPU: {cpu_model()}; jax {jax.__version__} on {jax.devices()[0].platform}; {args.repeats} repeats")
     print(

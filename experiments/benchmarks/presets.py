@@ -18,16 +18,17 @@ updates; ``--physics`` compares MJX with MuJoCo C.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 from collections.abc import Sequence
 
 import jax
+import tyro
 
 from experiments.machine import cpu_model
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.runs.config import PRESETS, TrainConfig
+from swat_jax.envs.physics import Physics
+from swat_jax.runs.config import PRESETS, Preset, TrainConfig
 from swat_jax.runs.experiment import Experiment
 
 
@@ -87,50 +88,37 @@ def measure(
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """End-to-end training throughput of the presets: environment steps and update work per second of wall clock."""
+
+    env: str = "hopper"
+    """Environment set."""
+    algo: str = "swat"
+    """Network (paper-sized)."""
+    presets: tuple[Preset, ...] = ("paper", "fast")
+    """Presets to time, the first the baseline."""
+    iterations: int = 3
+    """Timed iterations per preset."""
+    capacity: int = 100_000
+    """Replay rows per body."""
+    fast_copies: tuple[int, ...] = ()
+    """Also time fast with these copy counts."""
+    fast_updates: tuple[int, ...] = ()
+    """Also time fast with these updates per iteration."""
+    physics: Physics = "auto"
+    """Every run's physics."""
+    seeds: int = 1
+    """Seeds in each program."""
+    sizes: tuple[int, int, int] | None = None
+    """Network sizes: WIDTH LAYERS FEEDFORWARD (None: the algorithm's, paper-sized)."""
+    collection: bool = False
+    """Also time the paper preset's collection alone (no rounds, 1 update per body): with the paper row it splits an iteration into stepping the bodies and updating."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
-    parser.add_argument("--algo", default="swat", help="network (default swat, paper-sized)")
-    parser.add_argument(
-        "--presets",
-        nargs="+",
-        default=["paper", "fast"],
-        choices=sorted(PRESETS),
-        help="presets to time, the first the baseline (default paper fast)",
-    )
-    parser.add_argument("--iterations", type=int, default=3, help="timed iterations per preset (default 3)")
-    parser.add_argument("--capacity", type=int, default=100_000, help="replay rows per body (default 100000)")
-    parser.add_argument(
-        "--fast-copies", type=int, nargs="*", default=[], help="also time fast with these copy counts"
-    )
-    parser.add_argument(
-        "--fast-updates",
-        type=int,
-        nargs="*",
-        default=[],
-        help="also time fast with these updates per iteration",
-    )
-    parser.add_argument(
-        "--physics",
-        default="auto",
-        choices=("auto", "c", "jax", "warp"),
-        help="every run's physics (default auto)",
-    )
-    parser.add_argument("--seeds", type=int, default=1, help="seeds in each program (default 1)")
-    parser.add_argument(
-        "--sizes", type=int, nargs=3, metavar=("WIDTH", "LAYERS", "FEEDFORWARD"),
-        help="network sizes (default: the algorithm's, paper-sized)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--collection",
-        action="store_true",
-        help="also time the paper preset's collection alone (no rounds, 1 update per body): with the paper row "
-        "it splits an iteration into stepping the bodies and updating",
-    )
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.presets")
 
     def configured(preset: str, **changes) -> TrainConfig:
         base = PRESETS[preset]

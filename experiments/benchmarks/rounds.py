@@ -13,10 +13,11 @@ and prints each against the baseline measured in the same run (per slot: per upd
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 
 import jax
 import jax.numpy as jnp
+import tyro
 
 from experiments.machine import cpu_model
 from experiments.timing import median_seconds
@@ -47,20 +48,27 @@ def random_replay(
     return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.full((), capacity, jnp.int32))
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """The update phase of one paper-preset iteration with and without lock-step rounds."""
+
+    set: str = "walker"
+    """Environment set whose bodies are updated."""
+    seeds: int = 4
+    """Seeds in one program."""
+    width: int = 32
+    """SWAT width (the paper's is 128)."""
+    layers: int = 1
+    """SWAT layers (the paper's is 3)."""
+    capacity: int = 50_000
+    """Replay rows per body."""
+    repeats: int = 3
+    """Timed calls per measurement."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--set", default="walker", help="environment set whose bodies are updated (default walker)"
-    )
-    parser.add_argument("--seeds", type=int, default=4, help="seeds in one program (default 4)")
-    parser.add_argument("--width", type=int, default=32, help="SWAT width (default 32; the paper's is 128)")
-    parser.add_argument("--layers", type=int, default=1, help="SWAT layers (default 1; the paper's is 3)")
-    parser.add_argument("--capacity", type=int, default=50_000, help="replay rows per body (default 50000)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed calls per measurement (default 3)")
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.rounds")
 
     bodies = [load(name) for name in get_set(args.set).train]
     limbs = max(body.num_limbs for body in bodies)

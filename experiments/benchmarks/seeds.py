@@ -12,13 +12,15 @@ a real training run (start-up, compile, training, checkpoints) and is timed from
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+import tyro
 
 from experiments.machine import cpu_model, host_cores, software_versions
 
@@ -46,15 +48,22 @@ def timed_run(flags: list[str], cache: Path) -> float:
     return time.perf_counter() - start
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Many seeds in one program against the same runs one after another: wall clock, compile included."""
+
+    env: str = "hopper"
+    """Environment set."""
+    algo: str = "swat"
+    """Network."""
+    seeds: int = 5
+    """Seeds."""
+    steps: int = 30_000
+    """Environment steps per seed."""
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
-    parser.add_argument("--algo", default="swat", help="network (default swat)")
-    parser.add_argument("--seeds", type=int, default=5, help="seeds (default 5)")
-    parser.add_argument(
-        "--steps", type=int, default=30_000, help="environment steps per seed (default 30000)"
-    )
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.seeds")
 
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)

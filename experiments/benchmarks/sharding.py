@@ -11,12 +11,13 @@ costs, not a speed-up; on a multi-GPU machine ``--real`` uses the real devices.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import os
 import time
 from typing import Any
 
 import jax
+import tyro
 
 from experiments.benchmarks.presets import measure
 from experiments.machine import cpu_model, host_cores, software_versions
@@ -26,6 +27,22 @@ from swat_jax.runs.config import EnvConfig, NetworkSizes, TrainConfig
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 from swat_jax.td3.sharding import placement
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Training iterations over a device mesh against one device: environment steps per second after compilation."""
+
+    env: str = "hopper"
+    """Environment set."""
+    seeds: int = 4
+    """Seeds in the program."""
+    devices: tuple[int, ...] = (1, 2, 4)
+    """Device counts."""
+    iterations: int = 5
+    """Timed iterations per arm."""
+    real: bool = False
+    """The machine's real devices, not fake CPU ones."""
 
 
 def arm_config(env: str, seeds: int) -> TrainConfig:
@@ -54,7 +71,7 @@ def arm(env: str, seeds: int, devices: int, iterations: int) -> dict[str, Any]:
     }
 
 
-def run_arm(args: argparse.Namespace, devices: int) -> dict[str, Any]:
+def run_arm(args: Options, devices: int) -> dict[str, Any]:
     """One arm in a fresh process, with fake CPU devices unless ``--real``."""
     environment = dict(os.environ)
     if not args.real:
@@ -65,15 +82,7 @@ def run_arm(args: argparse.Namespace, devices: int) -> dict[str, Any]:
 
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="hopper", help="environment set (default hopper)")
-    parser.add_argument("--seeds", type=int, default=4, help="seeds in the program (default 4)")
-    parser.add_argument(
-        "--devices", type=int, nargs="+", default=[1, 2, 4], help="device counts (default 1 2 4)"
-    )
-    parser.add_argument("--iterations", type=int, default=5, help="timed iterations per arm (default 5)")
-    parser.add_argument("--real", action="store_true", help="the machine's real devices, not fake CPU ones")
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.sharding")
 
     start = time.perf_counter()
     rows = [run_arm(args, devices) for devices in args.devices]

@@ -23,7 +23,6 @@ the other networks only the ratio of transitions per second).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import re
 import subprocess
@@ -34,6 +33,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import tyro
 
 from experiments.machine import cpu_model
 from experiments.timing import median_seconds
@@ -275,28 +275,29 @@ def reference_report(
     return f"reference: {reference:,.0f} transitions/s, {rate:.0f} useful GFLOP/s ({rate / ceiling:.0%} of the ceiling); {ratio}"
 
 
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Time the TD3 update on a whole environment set: all tasks vmapped in one call against one task at a time."""
+
+    set: str = "animal_walkers"
+    """Environment set (training bodies) to update on."""
+    network: str = "swat"
+    """Network variant, any name network_config accepts."""
+    batch: int = 100
+    """Sampled transitions per task per update."""
+    updates: int = 10
+    """Updates per timed call (scanned in one jit)."""
+    repeats: int = 3
+    """Timed calls per measurement (median)."""
+    limb_buckets: int = 1
+    """Compute the tasks in this many limb buckets (1: all padded)."""
+    reference: str | None = None
+    """The original PyTorch update's run.sh (RUN_SH): run it right after (same set, --updates per body)."""
+
+
 def main() -> None:
     enable_caches()
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--set", default="animal_walkers", help="environment set (training bodies) to update on"
-    )
-    parser.add_argument("--network", default="swat", help="network variant, any name network_config accepts")
-    parser.add_argument("--batch", type=int, default=100, help="sampled transitions per task per update")
-    parser.add_argument("--updates", type=int, default=10, help="updates per timed call (scanned in one jit)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed calls per measurement (median)")
-    parser.add_argument(
-        "--limb-buckets",
-        type=int,
-        default=1,
-        help="compute the tasks in this many limb buckets (1: all padded)",
-    )
-    parser.add_argument(
-        "--reference",
-        metavar="RUN_SH",
-        help="the original PyTorch update's run.sh: run it right after (same set, --updates per body)",
-    )
-    args = parser.parse_args()
+    args = tyro.cli(Options, prog="python -m experiments.benchmarks.update")
 
     print(
         f"CPU: {cpu_model()}; jax {jax.__version__} on {jax.devices()[0].platform}; "

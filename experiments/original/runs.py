@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from experiments.paper import (
     GridError,
@@ -119,6 +119,8 @@ class Settings:
         return steps
 
 
+ScaleName = Literal["micro", "small", "paper"]
+"""The keys of :data:`SETTINGS`."""
 SETTINGS = {
     "micro": Settings(
         name="micro",

@@ -129,9 +129,8 @@ def make_train_iteration(
     counted since the run's start (:attr:`TrainState.counted`).
     """
     structure = jax.tree.map(jnp.asarray, structure)
-    mask = structure.limb_mask[:, None, :]
-    noise_scales = exploration_scales(config, env.copies)[None, :, None]
     num_tasks = structure.limb_mask.shape[0]
+    explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
 
     def random_phase(state: TrainState) -> jax.Array:
         """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
@@ -140,36 +139,20 @@ def make_train_iteration(
             return state.counted < config.random_steps * num_tasks
         return state.steps_per_task < config.random_steps
 
-    def act(
-        actor_params: Params, observation: jax.Array, uniform_phase: jax.Array, rng: jax.Array
-    ) -> jax.Array:
-        """[K, n, L] exploration actions for the observations [K, n, L, F] of one seed."""
-        policy_key, random_key = jax.random.split(rng)
-        policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(actor_params, observation, structure)
-        noise = noise_scales * jax.random.normal(policy_key, policy.shape)
-        uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
-        action = jnp.where(uniform_phase, uniform, jnp.clip(policy + noise, -1.0, 1.0))
-        return jnp.where(mask, action, 0.0)
-
     def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         seeds = state.rng.shape[0]
         over_seeds = axes.over_seeds(seeds)
         split = over_seeds(lambda key: tuple(jax.random.split(key)))
         buffer_axes = axes.seed_axes(state.buffer)
         inserted = over_seeds(insert, in_axes=(buffer_axes, 0), out_axes=buffer_axes)
-        acted = over_seeds(act, in_axes=(0, 0, 0 if config.rounds else None, 0))
-        update_phase = make_update_phase(
-            structure,
-            learner,
-            config.schedule,
-            config.chunk * env.copies if config.rounds else config.updates,
-            seeds,
-            counted=config.rounds,
-        )
+        explored = over_seeds(explore, in_axes=(0, 0, 0 if config.rounds else None, 0))
+        slots = config.chunk * env.copies if config.rounds else config.updates
+        update_phase = make_update_phase(structure, learner, config.schedule, slots, seeds, config.rounds)
 
         def collect(state: TrainState, _) -> tuple[TrainState, jax.Array]:
+            """One step of every copy of every task and seed, stored in the replay."""
             rng, act_key = split(state.rng)
-            action = acted(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
+            action = explored(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
             env_state, result = env.step(state.env, action)
             transitions = Transitions(
                 observation=state.env.observation,
@@ -207,3 +190,25 @@ def make_train_iteration(
         return state.replace(learner=learner_state, rng=rng), metrics
 
     return iteration
+
+
+def make_exploration(
+    learner: Learner, structure: StructureBatch, scales: jax.Array
+) -> Callable[[Params, jax.Array, jax.Array, jax.Array], jax.Array]:
+    """``explore(actor_params, observation [K, n, L, F], uniform_phase [], rng) -> action [K, n, L]`` of one
+    seed (paper section 5.1): uniform random actions in the random phase, else the policy plus Gaussian
+    noise of std ``scales`` [n] per copy (:func:`exploration_scales`), clipped to [-1, 1]; 0 on padded limbs."""
+    mask = structure.limb_mask[:, None, :]
+    noise_scales = scales[None, :, None]
+
+    def explore(
+        actor_params: Params, observation: jax.Array, uniform_phase: jax.Array, rng: jax.Array
+    ) -> jax.Array:
+        policy_key, random_key = jax.random.split(rng)
+        policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(actor_params, observation, structure)
+        noise = noise_scales * jax.random.normal(policy_key, policy.shape)
+        uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
+        action = jnp.where(uniform_phase, uniform, jnp.clip(policy + noise, -1.0, 1.0))
+        return jnp.where(mask, action, 0.0)
+
+    return explore
