@@ -58,12 +58,13 @@ from experiments.original.curves import (
     ours_curves,
     ours_surplus,
 )
-from experiments.original.returns import SIGNIFICANCE, final_returns, time_to_reach, welch
+from experiments.original.returns import SIGNIFICANCE, Final, final_returns, time_to_reach, welch
 from experiments.original.runs import (
     ORIGINAL,
     OURS,
     SETTINGS,
     Original,
+    OriginalRun,
     ScaleName,
     Settings,
     original_runs,
@@ -99,14 +100,9 @@ def compare(out: Path, settings: Settings, environment_set: str, timings: Mappin
     if not sides:
         return [f"## {environment_set}\n\nNothing trained yet."]
     points = curve_points(environment_set, sides)
-    figure = curves_figure(points, "train")
-    save(figure, out / f"{environment_set}.png")
+    save(curves_figure(points, "train"), out / f"{environment_set}.png")
     write_points_csv(points, out / f"{environment_set}.csv")
     finals = {side: final_returns(curves, settings, environment_set) for side, curves in sides.items()}
-    first = {
-        side: float(np.mean([next(iter(c.mean_over_bodies().values())) for c in curves]))
-        for side, curves in sides.items()
-    }
     lines = [
         f"## {get_set(environment_set).description or environment_set}, {settings.budget(environment_set):,} steps",
         "",
@@ -120,30 +116,50 @@ def compare(out: Path, settings: Settings, environment_set: str, timings: Mappin
         "|---|---|---|---|---|---|---|",
     ]
     for side, curves in sides.items():
+        first = float(np.mean([next(iter(c.mean_over_bodies().values())) for c in curves]))
         final = finals[side]
         if side == ORIGINAL:
-            wall = timings.get(f"original-{environment_set}")
-            seed_walls = [seconds for seconds in map(original_wall, originals) if seconds]
-            minutes = (
-                f"{wall / 60:.1f}, all seeds (side by side as --parallel allows)"
-                if wall is not None
-                else f"{np.mean(seed_walls) / 60:.1f} per seed (one core each)"
-                if seed_walls
-                else "-"
+            minutes, steps_rate, updates_rate = _original_speed(
+                originals, timings.get(f"original-{environment_set}")
             )
-            rates = [rate for rate in map(original_throughput, originals) if rate]
-            steps_rate = f"{np.mean([r[0] for r in rates]):.1f}" if rates else "-"
-            updates_rate = f"{np.mean([r[1] for r in rates]):.1f}" if rates else "-"
         else:
-            to_budget = max(c.seconds[max(c.seconds)] for c in curves) if timings.get(run.name) else None
-            minutes = "-" if to_budget is None else f"{to_budget / 60:.1f}, every seed in one program"
-            stored_rate = float(np.mean([row["steps_per_second"] for row in rows]))
-            steps_rate = f"{stored_rate:.1f}"
-            updates_rate = f"{stored_rate / np.mean(ours_surplus(rows)):.1f}"
+            minutes, steps_rate, updates_rate = _ours_speed(curves, rows, timings.get(run.name))
         lines.append(
-            f"| {side} | {len(curves)} | {first[side]:.1f} | {final.mean:.1f} ± {final.standard_error:.1f} "
+            f"| {side} | {len(curves)} | {first:.1f} | {final.mean:.1f} ± {final.standard_error:.1f} "
             f"| {minutes} | {steps_rate} | {updates_rate} |"
         )
+    lines += _surplus_lines(originals, rows)
+    if len(sides) == 2:
+        lines += _difference_lines(sides, finals, settings, environment_set)
+    return lines
+
+
+def _original_speed(originals: Sequence[OriginalRun], wall: float | None) -> tuple[str, str, str]:
+    """The original's table cells: wall clock to the budget, env steps/s and updates/s per seed."""
+    seed_walls = [seconds for seconds in map(original_wall, originals) if seconds]
+    if wall is not None:
+        minutes = f"{wall / 60:.1f}, all seeds (side by side as --parallel allows)"
+    else:
+        minutes = f"{np.mean(seed_walls) / 60:.1f} per seed (one core each)" if seed_walls else "-"
+    rates = [rate for rate in map(original_throughput, originals) if rate]
+    if not rates:
+        return minutes, "-", "-"
+    return minutes, f"{np.mean([r[0] for r in rates]):.1f}", f"{np.mean([r[1] for r in rates]):.1f}"
+
+
+def _ours_speed(
+    curves: Sequence[SeedCurves], rows: Sequence[Mapping[str, float]], wall: float | None
+) -> tuple[str, str, str]:
+    """swat_jax's table cells: wall clock to the budget, env steps/s and updates/s per seed."""
+    to_budget = max(c.seconds[max(c.seconds)] for c in curves) if wall else None
+    minutes = "-" if to_budget is None else f"{to_budget / 60:.1f}, every seed in one program"
+    stored_rate = float(np.mean([row["steps_per_second"] for row in rows]))
+    return minutes, f"{stored_rate:.1f}", f"{stored_rate / np.mean(ours_surplus(rows)):.1f}"
+
+
+def _surplus_lines(originals: Sequence[OriginalRun], rows: Sequence[Mapping[str, float]]) -> list[str]:
+    """How many more steps each side stepped than it counted."""
+    lines = []
     surplus = [value for value in map(original_surplus, originals) if value]
     if surplus:
         lines += [
@@ -159,27 +175,32 @@ def compare(out: Path, settings: Settings, environment_set: str, timings: Mappin
             f"swat_jax's seeds stepped {min(ours_stored):.2f}-{max(ours_stored):.2f}x the steps they counted "
             "(the same lock-step rounds; its curves are binned by counted steps).",
         ]
-    if len(sides) == 2:
-        a, b = finals[ORIGINAL], finals[OURS]
-        p = welch(a, b)
-        verdict = "within the noise" if p >= SIGNIFICANCE else "beyond the noise: a fidelity bug to find"
-        lines += [
-            "",
-            f"Difference (swat_jax - original): {b.mean - a.mean:+.1f} ± "
-            f"{math.hypot(a.standard_error, b.standard_error):.1f}; Welch's two-sided t-test over seeds: "
-            f"p = {p:.3f}, {verdict} (at {SIGNIFICANCE}).",
-        ]
-        lines += ["", *body_table(sides, settings, environment_set)]
-        reached = {side: time_to_reach(curves, a.mean) for side, curves in sides.items()}
-        lines += [
-            "",
-            f"Wall clock to first reach the original's final return ({a.mean:.1f}) on the mean-over-seeds curve: "
-            + "; ".join(
-                f"{side} {'never' if t is None else f'{t / 60:.1f} min'}" for side, t in reached.items()
-            )
-            + " (the original: one seed's run on one core; swat_jax: every seed at once on all cores).",
-        ]
     return lines
+
+
+def _difference_lines(
+    sides: Mapping[str, Sequence[SeedCurves]],
+    finals: Mapping[str, Final],
+    settings: Settings,
+    environment_set: str,
+) -> list[str]:
+    """The two sides' difference, Welch's test, the per-body table and the wall clock to the original's return."""
+    a, b = finals[ORIGINAL], finals[OURS]
+    p = welch(a, b)
+    verdict = "within the noise" if p >= SIGNIFICANCE else "beyond the noise: a fidelity bug to find"
+    reached = {side: time_to_reach(curves, a.mean) for side, curves in sides.items()}
+    return [
+        "",
+        f"Difference (swat_jax - original): {b.mean - a.mean:+.1f} ± "
+        f"{math.hypot(a.standard_error, b.standard_error):.1f}; Welch's two-sided t-test over seeds: "
+        f"p = {p:.3f}, {verdict} (at {SIGNIFICANCE}).",
+        "",
+        *body_table(sides, settings, environment_set),
+        "",
+        f"Wall clock to first reach the original's final return ({a.mean:.1f}) on the mean-over-seeds curve: "
+        + "; ".join(f"{side} {'never' if t is None else f'{t / 60:.1f} min'}" for side, t in reached.items())
+        + " (the original: one seed's run on one core; swat_jax: every seed at once on all cores).",
+    ]
 
 
 def body_table(
