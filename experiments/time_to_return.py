@@ -128,6 +128,7 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
     "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, learning_rate=3e-3),
     "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, learning_rate=2e-3),
+    "fast-c4-k16-u64-b100-lr5e-3-2dev": recipe(4, 16, 64, 100, learning_rate=5e-3),
     "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, learning_rate=3e-3),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
