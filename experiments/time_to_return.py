@@ -88,6 +88,8 @@ class Candidate:
     """Each copy's exploration noise std, spread evenly from the first to the second."""
     c51: bool = False
     """A distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
+    initialisation: str | None = None
+    """Initial weights: flax or original (the original PyTorch code's)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -102,7 +104,8 @@ class Candidate:
         if self.c51:
             td3 = dataclasses.replace(td3, atoms=51, value_min=-100.0, value_max=400.0)
         envs = dataclasses.replace(scaled.envs, **_given(copies=self.copies))
-        return dataclasses.replace(scaled, envs=envs, iteration=iteration, td3=td3)
+        network = dataclasses.replace(scaled.network, **_given(initialisation=self.initialisation))
+        return dataclasses.replace(scaled, envs=envs, iteration=iteration, td3=td3, network=network)
 
 
 def _given(**values: Any) -> dict[str, Any]:
@@ -119,6 +122,7 @@ def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Ca
 CANDIDATES: dict[str, Candidate] = {
     "paper": Candidate("paper"),
     "paper-2dev": Candidate("paper"),
+    "paper-init-2dev": Candidate("paper", initialisation="original"),
     "fast": Candidate(),
     "fast-2dev": Candidate(),
     "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
@@ -130,6 +134,12 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, learning_rate=2e-3),
     "fast-c4-k16-u64-b100-lr5e-3-2dev": recipe(4, 16, 64, 100, learning_rate=5e-3),
     "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, learning_rate=3e-3),
+    "fast-c4-k16-u64-b100-lr3e-3-init-2dev": recipe(
+        4, 16, 64, 100, learning_rate=3e-3, initialisation="original"
+    ),
+    "fast-init-2dev": Candidate(initialisation="original"),
+    "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
+    "fast-c4-k16-u128-b50-2dev": recipe(4, 16, 128, 50),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
@@ -139,7 +149,8 @@ CANDIDATES: dict[str, Candidate] = {
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic;
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-init`` with the original code's initial weights (``paper-init``: the
+paper preset with them);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over

@@ -136,22 +136,27 @@ def lock_step_episodes(lengths: list[list[list[int]]], steps: int) -> dict[str, 
     """Drive :func:`lock_step_round` with copies whose episodes last the given numbers of steps.
 
     ``lengths[r][k]`` lists the lengths of body k's successive episodes in run r (one copy each); a
-    restart starts the next length. Returns per step [T, R, K] the finished, restart and counted flags.
+    restart starts the next length. Returns per step [T, R, K] the finished, restart, counted and logged flags.
     """
     runs, bodies = len(lengths), len(lengths[0])
     episode = np.zeros((runs, bodies), int)
     age = np.zeros((runs, bodies), int)
     round_ended = jnp.zeros((runs, bodies, 1), bool)
-    record = {"finished": [], "restart": [], "counted": []}
+    record = {"finished": [], "restart": [], "counted": [], "logged": []}
     for _ in range(steps):
         age += 1
         lengths_now = np.array([[lengths[r][k][episode[r, k]] for k in range(bodies)] for r in range(runs)])
         finished = age == lengths_now
-        restart, round_ended, counted = lock_step_round(round_ended, jnp.asarray(finished)[..., None])
+        restart, round_ended, counted, logged = lock_step_round(round_ended, jnp.asarray(finished)[..., None])
         restart = np.asarray(restart)[..., 0]
         episode += restart
         age[restart] = 0
-        for name, value in (("finished", finished), ("restart", restart), ("counted", counted[..., 0])):
+        for name, value in (
+            ("finished", finished),
+            ("restart", restart),
+            ("counted", counted[..., 0]),
+            ("logged", logged[..., 0]),
+        ):
             record[name].append(np.asarray(value))
     return {name: np.stack(values) for name, values in record.items()}
 
@@ -176,6 +181,20 @@ def test_lock_step_rounds_count_first_episodes_and_cut_the_others_at_the_round_e
     np.testing.assert_array_equal(counted[:3, 1], [[1, 0], [1, 0], [0, 0]])
     np.testing.assert_array_equal(restart[:3, 1], [[0, 1], [0, 0], [1, 1]])
     np.testing.assert_array_equal(restart[3:5, 1], [[0, 1], [1, 1]])
+
+
+def test_lock_step_rounds_log_only_each_copys_first_episode_of_a_round():
+    """As the original logs them: run 0's body 0 does not log its second episode of round 1, run 1's body 1
+    its second of round 1; every first episode of a round is logged."""
+    lengths = [[[2, 2, 5, 9], [4, 3, 9, 9]], [[3, 2, 9], [1, 2, 1, 9, 9]]]
+    flags = lock_step_episodes(lengths, steps=9)
+    logged, finished = flags["logged"], flags["finished"]
+    assert (logged <= finished).all()
+    assert np.flatnonzero(finished[:, 0, 0]).tolist() == [1, 3, 8]
+    assert np.flatnonzero(logged[:, 0, 0]).tolist() == [1, 8], "round 1's second episode, at index 3, is not"
+    assert np.flatnonzero(logged[:, 0, 1]).tolist() == [3, 6]
+    assert np.flatnonzero(finished[:, 1, 1]).tolist() == [0, 2, 3]
+    assert np.flatnonzero(logged[:, 1, 1]).tolist() == [0, 3], "the episode ended at index 2 is its second"
 
 
 def test_without_lock_step_every_step_counts_and_only_finished_copies_restart():

@@ -8,6 +8,7 @@ comparison is at float32 tolerance.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import mujoco
 import numpy as np
 import pytest
 from original_parity_data import filled_state_dict, flat_ids, stored_shapes
+from scipy import stats
 
 from swat_jax.envs.observation import limb_observation
 from swat_jax.morphology import RELATION_NAMES, load, pad_structures
@@ -126,6 +128,79 @@ def test_networks_equal_the_original(architecture, state):
                 ours = ours.sum(axis=-1, keepdims=True)
             expected = DATA[f"{architecture}/{state}/{body}/{name}"]
             np.testing.assert_allclose(ours, expected, **TOLERANCE, err_msg=f"{body} {name}")
+
+
+def initial_weight_mismatches(architecture: str, initialisation: str) -> list[str]:
+    """The weights of our freshly initialised actor and critic whose distribution differs from the original's
+    own initialisation (the fixture's ``init`` state, read in by the converter): a constant array (zeros, a
+    LayerNorm's ones) on either side that the other does not equal, or a two-sample Kolmogorov-Smirnov or Levene (equal
+    spread) p below 1e-3."""
+    net_config = config(architecture, DATA, int(DATA["max_children"]))
+    net_config = dataclasses.replace(net_config, initialisation=initialisation)
+    actor, critic = make_actor_critic(net_config, int(DATA["features"]))
+    theirs = {
+        "actor": actor_params(stored_or_filled(DATA, architecture, "init", "actor", 0), net_config),
+        "critic": critic_params(stored_or_filled(DATA, architecture, "init", "critic", 0), net_config),
+    }
+    ours = {"actor": actor.init(jax.random.key(1)), "critic": critic.init(jax.random.key(2))}
+    mismatches = []
+    for (path, mine), original in zip(
+        jax.tree_util.tree_leaves_with_path(ours), jax.tree.leaves(theirs), strict=True
+    ):
+        mine, original = np.asarray(mine).ravel(), np.asarray(original).ravel()
+        if np.ptp(original) == 0 or np.ptp(mine) == 0:
+            matches = np.array_equal(mine, original)
+        else:
+            matches = min(stats.ks_2samp(mine, original).pvalue, stats.levene(mine, original).pvalue) > 1e-3
+        if not matches:
+            mismatches.append(jax.tree_util.keystr(path))
+    return mismatches
+
+
+@pytest.mark.parametrize("architecture", ["swat", "amorpheus"])
+def test_the_original_initialisation_draws_what_the_original_code_draws(architecture):
+    """``initialisation="original"``: every weight as the original's (docs/fidelity.md, rows 6-11), Flax's
+    defaults differ where the table says (the limb encoder's bias and scale, the traversal tables)."""
+    assert initial_weight_mismatches(architecture, "original") == []
+    differing = " ".join(initial_weight_mismatches(architecture, "flax"))
+    for weight in (
+        "['limb_encoder']['kernel']",
+        "['limb_encoder']['bias']",
+        "['feedforward_hidden']['bias']",
+    ):
+        assert weight in differing
+    if architecture == "swat":
+        assert "['in_order']['embedding']" in differing
+
+
+@pytest.mark.parametrize("architecture", ["swat", "amorpheus"])
+def test_the_original_initialisation_starts_every_layer_as_a_copy_of_the_first(architecture):
+    """The original deep-copies one encoder layer (docs/fidelity.md, row 10)."""
+    net_config = dataclasses.replace(
+        config(architecture, DATA, int(DATA["max_children"])), initialisation="original"
+    )
+    actor, _ = make_actor_critic(net_config, int(DATA["features"]))
+    layers = actor.init(jax.random.key(0))["params"]["policy"]
+    assert net_config.layers == 2
+    jax.tree.map(np.testing.assert_array_equal, layers["layer_0"], layers["layer_1"])
+
+
+def test_the_original_initialisation_of_smp_is_pytorchs_default():
+    """SMP's every linear layer, kernel and bias, uniform on +-1/sqrt(fan in) (docs/fidelity.md, row 20)."""
+    net_config = dataclasses.replace(
+        config("smp", DATA, int(DATA["max_children"])), initialisation="original"
+    )
+    _, critic = make_actor_critic(net_config, int(DATA["features"]))
+    layers = jax.tree_util.tree_leaves_with_path(critic.init(jax.random.key(0)))
+    kernels = {jax.tree_util.keystr(path[:-1]): kernel for path, kernel in layers if path[-1].key == "kernel"}
+    for path, bias in layers:
+        if path[-1].key != "bias":
+            continue
+        kernel = kernels[jax.tree_util.keystr(path[:-1])]
+        bound = 1 / np.sqrt(kernel.shape[-2])
+        for values in (np.asarray(kernel).ravel(), np.asarray(bias).ravel()):
+            assert np.abs(values).max() <= bound
+            assert stats.kstest(values, stats.uniform(-bound, 2 * bound).cdf).pvalue > 1e-3, path
 
 
 def probed(params, ids_tree, probe_ids: np.ndarray) -> np.ndarray:

@@ -390,6 +390,25 @@ def test_the_intended_preset_is_the_paper_preset_with_every_quirk_fixed():
     assert fixed(paper) == dataclasses.replace(intended, preset="paper")
 
 
+@pytest.mark.parametrize(("preset", "initialisation"), [("paper", "original"), ("fast", "flax")])
+def test_a_runs_networks_start_from_its_presets_initial_weights(
+    preset, initialisation, hopper_folder, tmp_path
+):
+    """The paper preset draws the original code's initial weights (its two layers start equal), fast Flax's."""
+    sizes = {"width": 16, "layers": 2, "feedforward": 32}
+    network = dataclasses.replace(PRESETS[preset].network, **sizes)
+    config = dataclasses.replace(
+        PRESETS[preset], env=str(hopper_folder), network=network, run_dir=str(tmp_path)
+    )
+    assert config.network.initialisation == initialisation
+    actor = Experiment.build(config).learner.actor
+    layers = actor.init(jax.random.key(0))["params"]["policy"]
+    first, second = (jax.tree.leaves(layers[name]) for name in ("layer_0", "layer_1"))
+    equal = [np.array_equal(one, other) for one, other in zip(first, second, strict=True)]
+    kernel = [layers[name]["feedforward_hidden"]["kernel"] for name in ("layer_0", "layer_1")]
+    assert all(equal) if initialisation == "original" else not np.array_equal(*kernel)
+
+
 def test_cli_help_documents_every_option_and_presets_set_defaults(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["--help"])

@@ -15,6 +15,9 @@ copy has ended its first episode of the round; a copy that ended it keeps steppi
 start as usual), and when the round ends every copy starts a new episode, cutting the ones still running.
 A step *counts* (toward the step budget and the number of updates, as the original's step counter) while
 the copy's first episode of the round goes on after it: neither the step that ends it nor the steps after.
+The episode statistics then hold only each copy's first episode of every round, as the original logs them:
+its later episodes of the round are cut when the round ends unless they are short, so counting them would
+weigh short episodes more.
 
 Several independent runs (seeds) step together as a leading seed axis [S] on every array of the state:
 each seed splits its own keys, and the physics sees the seeds' copies folded into one batch of S x n.
@@ -42,7 +45,8 @@ from swat_jax.morphology.types import Morphology
 
 @struct.dataclass
 class EpisodeStats:
-    """Sums over the episodes each body finished since the stats were last cleared, [K] each."""
+    """Sums over the episodes each body finished since the stats were last cleared, [K] each (with lock-step
+    rounds, only each copy's first episode of a round)."""
 
     return_sum: jax.Array
     length_sum: jax.Array
@@ -224,9 +228,10 @@ class MultiTaskEnv:
         axis = len(seeds)
         finished = jnp.stack([body.done for body in stepped], axis)
         if self.lock_step:
-            restart, round_ended, counted = lock_step_round(state.round_ended, finished)
+            restart, round_ended, counted, logged = lock_step_round(state.round_ended, finished)
         else:
             restart, round_ended, counted = finished, state.round_ended, jnp.ones_like(finished)
+            logged = finished
         continued = tuple(
             _unfolded(
                 _where_done(_folded(restart[..., k, :], seeds, self.copies), fresh, after_step),
@@ -243,13 +248,13 @@ class MultiTaskEnv:
             counted=counted,
         )
 
-        def finished_sum(values: list[jax.Array]) -> jax.Array:
-            return jnp.sum(jnp.where(finished, jnp.stack(values, axis), 0), axis=-1)
+        def logged_sum(values: list[jax.Array]) -> jax.Array:
+            return jnp.sum(jnp.where(logged, jnp.stack(values, axis), 0), axis=-1)
 
         episodes = EpisodeStats(
-            return_sum=state.episodes.return_sum + finished_sum([b.episode_return for b in stepped]),
-            length_sum=state.episodes.length_sum + finished_sum([b.episode_length for b in stepped]),
-            count=state.episodes.count + jnp.sum(finished, axis=-1, dtype=jnp.int32),
+            return_sum=state.episodes.return_sum + logged_sum([b.episode_return for b in stepped]),
+            length_sum=state.episodes.length_sum + logged_sum([b.episode_length for b in stepped]),
+            count=state.episodes.count + jnp.sum(logged, axis=-1, dtype=jnp.int32),
         )
         next_state = MultiTaskState(
             bodies=continued,
@@ -282,7 +287,9 @@ class MultiTaskEnv:
         )
 
 
-def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+def lock_step_round(
+    round_ended: jax.Array, finished: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """One step of the original code's lock-step rounds (its training loop's ``done_list`` bookkeeping).
 
     Args:
@@ -290,14 +297,15 @@ def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> tuple[jax.Ar
         finished: [*S, K, n] bool, copies whose episode this step ended (terminated or truncated).
 
     Returns:
-        ``(restart, round_ended, counted)``, each [*S, K, n] bool: the copies that start a new episode (the
-        finished ones, and every copy of a seed whose round this step ended: all its copies have ended
-        their first episode), the copies whose first episode of the (next) round has ended, and the steps
-        that count (the copy's first episode of the round goes on after this step).
+        ``(restart, round_ended, counted, logged)``, each [*S, K, n] bool: the copies that start a new
+        episode (the finished ones, and every copy of a seed whose round this step ended: all its copies
+        have ended their first episode), the copies whose first episode of the (next) round has ended, the
+        steps that count (the copy's first episode of the round goes on after this step), and the copies
+        whose first episode of the round this step ended (the episodes the original logs).
     """
     ended = round_ended | finished
     round_over = jnp.all(ended, axis=(-2, -1), keepdims=True)
-    return finished | round_over, ended & ~round_over, ~ended
+    return finished | round_over, ended & ~round_over, ~ended, finished & ~round_ended
 
 
 def _per_seed(function: Callable, seeds: tuple[int, ...]) -> Callable:

@@ -12,6 +12,7 @@ import dataclasses
 from typing import Any
 
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES
+from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 
 ARCHITECTURES = ("swat", "amorpheus", "smp")
 
@@ -57,6 +58,9 @@ class NetworkConfig:
     """SMP: hidden widths of the top-down modules, one for the output, one for the messages (ReLU)."""
     max_children: int = 4
     """SMP: child message slots per limb (4 is the most children of any benchmark limb)."""
+    initialisation: Initialisation = "flax"
+    """Initial weights: "flax" (Flax's defaults) or "original" (the original PyTorch code's, every
+    transformer layer starting as a copy of the first; :mod:`swat_jax.networks.initialisation`)."""
 
     @property
     def sums_limb_values(self) -> bool:
@@ -75,6 +79,8 @@ class NetworkConfig:
             isinstance(self.layer_norm_epsilon, int | float) and self.layer_norm_epsilon > 0
         ):
             raise ValueError(f"layer_norm_epsilon must be a positive number, got {self.layer_norm_epsilon!r}")
+        if self.initialisation not in INITIALISATIONS:
+            raise ValueError(f"initialisation must be one of {INITIALISATIONS}, got {self.initialisation!r}")
         if self.width % self.heads != 0:
             raise ValueError(f"width ({self.width}) must be divisible by heads ({self.heads})")
         for name in ("decoder_hidden", "up_hidden", "down_hidden"):

@@ -24,6 +24,7 @@ import numpy as np
 
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.config import NetworkConfig
+from swat_jax.networks.initialisation import copy_first_layer
 from swat_jax.networks.smp import SharedModularCritic, SharedModularPolicy, most_children
 from swat_jax.networks.transformer import StructureAwareTransformer
 
@@ -124,7 +125,10 @@ class LimbNetwork:
             if isinstance(self.module, Actor)
             else (limb_obs, jnp.zeros((1, 1)), structure)
         )
-        return {"params": self.module.init(rng, *inputs)["params"]}
+        params = self.module.init(rng, *inputs)["params"]
+        if self.module.config.initialisation == "original":
+            params = copy_first_layer(params)
+        return {"params": params}
 
     def apply(self, params: Params, *inputs: Any, **kwargs: Any) -> Any:
         """``module.apply``: actor (params, limb_obs, structure), critic (params, limb_obs, actions, structure)."""

@@ -32,6 +32,7 @@ import numpy as np
 
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.config import NetworkConfig
+from swat_jax.networks.initialisation import linear_init
 
 NORMALIZE_EPSILON = 1e-12
 
@@ -73,6 +74,8 @@ class MLP(nn.Module):
     hidden: tuple[int, ...]
     outputs: int
     activation: str = "relu"
+    initialisation: str = "flax"
+    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
 
     @nn.compact
     def __call__(self, inputs: jax.Array) -> jax.Array:
@@ -80,8 +83,10 @@ class MLP(nn.Module):
         activation = getattr(jax.nn, self.activation)
         hidden = inputs
         for size in self.hidden:
-            hidden = activation(nn.Dense(size)(hidden))
-        return nn.Dense(self.outputs)(hidden)
+            hidden = activation(
+                nn.Dense(size, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
+            )
+        return nn.Dense(self.outputs, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
 
 
 class BottomUpStep(nn.Module):
@@ -99,9 +104,14 @@ class BottomUpStep(nn.Module):
         children_messages = jnp.einsum("sj,bjm->bsm", slots[limb], up_messages)
         children_messages = children_messages.reshape(up_messages.shape[0], -1)
         own_input = jnp.take(limb_inputs, limb, axis=1)
-        encoded = normalize(nn.Dense(config.up_hidden[0], name="input_encoder")(own_input))
+        encoder_init = linear_init(config.initialisation, "default", own_input.shape[-1])
+        encoded = normalize(nn.Dense(config.up_hidden[0], name="input_encoder", **encoder_init)(own_input))
         hidden = jnp.tanh(jnp.concatenate([encoded, children_messages], axis=-1))
-        message = normalize(MLP(config.up_hidden[1:], config.message_width, "tanh", name="message")(hidden))
+        message = normalize(
+            MLP(config.up_hidden[1:], config.message_width, "tanh", config.initialisation, name="message")(
+                hidden
+            )
+        )
         return up_messages.at[:, limb].set(message), None
 
 
@@ -120,9 +130,12 @@ class TopDownStep(nn.Module):
         parent_message = jnp.take(parent_messages(down_messages, slots, config), limb, axis=1)
         own_message = jnp.take(up_messages, limb, axis=1)
         hidden = jnp.tanh(jnp.concatenate([own_message, parent_message], axis=-1))
-        outgoing = MLP(config.down_hidden, config.max_children * config.message_width, name="messages")(
-            hidden
-        )
+        outgoing = MLP(
+            config.down_hidden,
+            config.max_children * config.message_width,
+            initialisation=config.initialisation,
+            name="messages",
+        )(hidden)
         return down_messages.at[:, limb].set(normalize(outgoing)), None
 
 
@@ -191,7 +204,9 @@ class SharedModularPolicy(nn.Module):
         limbs unspecified)."""
         up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
         hidden = jnp.tanh(jnp.concatenate([up_messages, from_parent], axis=-1))
-        return MLP(self.config.down_hidden, 1, name="output")(hidden)[..., 0]
+        return MLP(self.config.down_hidden, 1, initialisation=self.config.initialisation, name="output")(
+            hidden
+        )[..., 0]
 
 
 class SharedModularCritic(nn.Module):
@@ -212,5 +227,10 @@ class SharedModularCritic(nn.Module):
         limb_inputs = jnp.concatenate([limb_obs, actions], axis=-1)
         up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
         head_inputs = jnp.concatenate([up_messages, actions, from_parent], axis=-1)
-        q1, q2 = (MLP(self.config.down_hidden, 1, name=name)(head_inputs)[..., 0] for name in ("q1", "q2"))
+        q1, q2 = (
+            MLP(self.config.down_hidden, 1, initialisation=self.config.initialisation, name=name)(
+                head_inputs
+            )[..., 0]
+            for name in ("q1", "q2")
+        )
         return q1, q2

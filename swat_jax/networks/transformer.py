@@ -20,6 +20,7 @@ import jax.numpy as jnp
 
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES, StructureBatch
 from swat_jax.networks.config import NetworkConfig
+from swat_jax.networks.initialisation import embedding_init, linear_init
 
 
 def traversal_embedding_widths(width: int, count: int) -> tuple[int, ...]:
@@ -43,9 +44,12 @@ class TraversalEmbedding(nn.Module):
         """[limbs, 3] int positions (columns in TRAVERSAL_NAMES order) -> [limbs, width]."""
         widths = traversal_embedding_widths(self.config.width, len(self.config.traversals))
         vectors = [
-            nn.Embed(self.config.max_traversal_positions, table_width, name=f"{traversal}_order")(
-                traversal_positions[:, TRAVERSAL_NAMES.index(traversal)]
-            )
+            nn.Embed(
+                self.config.max_traversal_positions,
+                table_width,
+                name=f"{traversal}_order",
+                **embedding_init(self.config.initialisation),
+            )(traversal_positions[:, TRAVERSAL_NAMES.index(traversal)])
             for traversal, table_width in zip(self.config.traversals, widths, strict=True)
         ]
         return jnp.concatenate(vectors, axis=-1)
@@ -65,7 +69,12 @@ class RelationalEmbedding(nn.Module):
         """[limbs, limbs, 3] relation features (RELATION_NAMES order) -> [heads, limbs, limbs] bias."""
         columns = [RELATION_NAMES.index(name) for name in self.config.relations]
         features = jnp.take(relations, jnp.array(columns), axis=-1)
-        relation_bias = nn.Dense(self.config.heads, use_bias=False, name="g")(features)
+        relation_bias = nn.Dense(
+            self.config.heads,
+            use_bias=False,
+            name="g",
+            **linear_init(self.config.initialisation, "default", len(columns)),
+        )(features)
         return jnp.moveaxis(relation_bias, -1, 0)
 
 
@@ -79,6 +88,8 @@ class MaskedMultiHeadAttention(nn.Module):
 
     width: int
     heads: int
+    initialisation: str = "flax"
+    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
 
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None) -> jax.Array:
@@ -86,7 +97,8 @@ class MaskedMultiHeadAttention(nn.Module):
         head_width = self.width // self.heads
 
         def project(name: str, use_bias: bool = True) -> jax.Array:
-            projected = nn.Dense(self.width, use_bias=use_bias, name=name)(tokens)
+            init = linear_init(self.initialisation, "attention_projection", tokens.shape[-1])
+            projected = nn.Dense(self.width, use_bias=use_bias, name=name, **init)(tokens)
             return projected.reshape(*tokens.shape[:-1], self.heads, head_width)
 
         queries, keys, values = project("query"), project("key", use_bias=False), project("value")
@@ -97,7 +109,8 @@ class MaskedMultiHeadAttention(nn.Module):
         attention_weights = jax.nn.softmax(logits, axis=-1)
         self.sow("intermediates", "attention_weights", attention_weights)
         attended = jnp.einsum("bhqk,bkhd->bqhd", attention_weights, values)
-        return nn.Dense(self.width, name="output")(attended.reshape(tokens.shape))
+        output_init = linear_init(self.initialisation, "attention_output", self.width)
+        return nn.Dense(self.width, name="output", **output_init)(attended.reshape(tokens.shape))
 
 
 class TransformerLayer(nn.Module):
@@ -108,13 +121,16 @@ class TransformerLayer(nn.Module):
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None) -> jax.Array:
         """tokens [batch, limbs, width] -> [batch, limbs, width]."""
-        attended = MaskedMultiHeadAttention(self.config.width, self.config.heads, name="attention")(
-            tokens, limb_mask, relation_bias
-        )
-        epsilon = self.config.layer_norm_epsilon
+        config = self.config
+        attended = MaskedMultiHeadAttention(
+            config.width, config.heads, config.initialisation, name="attention"
+        )(tokens, limb_mask, relation_bias)
+        epsilon = config.layer_norm_epsilon
         tokens = nn.LayerNorm(epsilon, name="attention_norm")(tokens + attended)
-        hidden = nn.relu(nn.Dense(self.config.feedforward, name="feedforward_hidden")(tokens))
-        transformed = nn.Dense(self.config.width, name="feedforward_output")(hidden)
+        hidden_init = linear_init(config.initialisation, "default", config.width)
+        hidden = nn.relu(nn.Dense(config.feedforward, name="feedforward_hidden", **hidden_init)(tokens))
+        output_init = linear_init(config.initialisation, "default", config.feedforward)
+        transformed = nn.Dense(config.width, name="feedforward_output", **output_init)(hidden)
         return nn.LayerNorm(epsilon, name="feedforward_norm")(tokens + transformed)
 
 
@@ -124,6 +140,8 @@ class LimbDecoder(nn.Module):
 
     hidden: tuple[int, ...]
     outputs: int = 1
+    initialisation: str = "flax"
+    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
 
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_inputs: jax.Array) -> jax.Array:
@@ -131,8 +149,12 @@ class LimbDecoder(nn.Module):
         [batch, limbs, outputs] when ``outputs`` > 1."""
         hidden = jnp.concatenate([tokens, limb_inputs], axis=-1)
         for size in self.hidden:
-            hidden = nn.relu(nn.Dense(size)(hidden))
-        values = nn.Dense(self.outputs)(hidden)
+            hidden = nn.relu(
+                nn.Dense(size, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
+            )
+        values = nn.Dense(self.outputs, **linear_init(self.initialisation, "decoder", hidden.shape[-1]))(
+            hidden
+        )
         return values[..., 0] if self.outputs == 1 else values
 
 
@@ -157,7 +179,10 @@ class StructureAwareTransformer(nn.Module):
             unspecified values).
         """
         config = self.config
-        tokens = nn.Dense(config.width, name="limb_encoder")(limb_inputs) * math.sqrt(config.width)
+        encoder_init = linear_init(config.initialisation, "limb_encoder", limb_inputs.shape[-1])
+        tokens = nn.Dense(config.width, name="limb_encoder", **encoder_init)(limb_inputs) * math.sqrt(
+            config.width
+        )
         if config.traversals:
             tokens = tokens + TraversalEmbedding(config, name="traversal_embedding")(
                 structure.traversal_positions
@@ -172,4 +197,5 @@ class StructureAwareTransformer(nn.Module):
             tokens = TransformerLayer(config, name=f"layer_{layer}")(tokens, structure.limb_mask, layer_bias)
         if config.final_norm:
             tokens = nn.LayerNorm(config.layer_norm_epsilon, name="final_norm")(tokens)
-        return LimbDecoder(config.decoder_hidden, self.outputs, name="decoder")(tokens, limb_inputs)
+        decoder = LimbDecoder(config.decoder_hidden, self.outputs, config.initialisation, name="decoder")
+        return decoder(tokens, limb_inputs)

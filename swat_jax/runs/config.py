@@ -35,6 +35,7 @@ from swat_jax.envs.physics import PHYSICS, Physics
 from swat_jax.morphology import SETS, get_set, load
 from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
+from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 from swat_jax.networks.smp import most_children
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
@@ -94,11 +95,17 @@ class NetworkSizes:
     """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
     reference_inorder: bool = True
     """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
+    initialisation: Initialisation = "original"
+    """Initial weights: original (the original PyTorch code's, the paper preset: uniform kernels and biases, traversal tables N(0, 1), every transformer layer a copy of the first; docs/fidelity.md, rows 6-11 and 20) or flax (Flax's defaults, the fast preset)."""
 
     def __post_init__(self) -> None:
         for name in (*NETWORK_SIZES, "smp_hidden"):
             if getattr(self, name) is not None:
                 require_positive(f"--network.{name.replace('_', '-')}", getattr(self, name))
+        if self.initialisation not in INITIALISATIONS:
+            raise ConfigError(
+                f"--network.initialisation must be one of {', '.join(INITIALISATIONS)}, got {self.initialisation!r}"
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -288,6 +295,7 @@ class TrainConfig:
         }
         if self.algo == "smp" and self.network.max_children is None:
             sizes["max_children"] = _most_children(self.training_bodies())
+        sizes["initialisation"] = self.network.initialisation
         if self.network.smp_hidden is not None:
             sizes.update(up_hidden=(self.network.smp_hidden,) * 2, down_hidden=(self.network.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)
@@ -340,6 +348,7 @@ PRESETS: dict[str, TrainConfig] = {
         fixed(PAPER),
         preset="fast",
         envs=dataclasses.replace(fixed(PAPER).envs, copies=4),
+        network=dataclasses.replace(fixed(PAPER).network, initialisation="flax"),
         iteration=dataclasses.replace(
             PAPER.iteration, chunk=16, updates=128, schedule="all_tasks", rounds=False
         ),
