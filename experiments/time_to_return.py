@@ -122,7 +122,7 @@ def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Ca
 CANDIDATES: dict[str, Candidate] = {
     "paper": Candidate("paper"),
     "paper-2dev": Candidate("paper"),
-    "paper-init-2dev": Candidate("paper", initialisation="original"),
+    "paper-flax-2dev": Candidate("paper", initialisation="flax"),
     "fast": Candidate(),
     "fast-2dev": Candidate(),
     "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
@@ -140,6 +140,7 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-init-2dev": Candidate(initialisation="original"),
     "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
     "fast-c4-k16-u128-b50-2dev": recipe(4, 16, 128, 50),
+    "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
@@ -149,8 +150,8 @@ CANDIDATES: dict[str, Candidate] = {
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-init`` with the original code's initial weights (``paper-init``: the
-paper preset with them);
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-init`` with the original code's initial weights (``paper-flax``: the
+paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over
@@ -221,15 +222,15 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
     if name not in CANDIDATES:
         raise GridError(f"unknown candidate {name!r}; candidates: {', '.join(CANDIDATES)}")
     devices, run_dir = CPU_DEVICES.get(name, 1), out / "runs" / f"{environment_set}-{name}"
-    if name.startswith("paper"):
-        config = dataclasses.replace(ours(out, settings, environment_set).config, run_dir=str(run_dir))
-        return DeviceRun(config, devices)
-    interval = settings.log_interval(environment_set)
-    steps = settings.budget(environment_set)
     candidate = CANDIDATES[name]
-    scaled = settings.config(
-        PRESETS[candidate.preset], environment_set, run_dir, steps=steps, log_interval=interval
-    )
+    if candidate.preset == "paper":
+        scaled = dataclasses.replace(ours(out, settings, environment_set).config, run_dir=str(run_dir))
+    else:
+        interval = settings.log_interval(environment_set)
+        steps = settings.budget(environment_set)
+        scaled = settings.config(
+            PRESETS[candidate.preset], environment_set, run_dir, steps=steps, log_interval=interval
+        )
     return DeviceRun(candidate.config(scaled), devices)
 
 

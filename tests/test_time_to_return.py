@@ -98,3 +98,22 @@ def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):
     plain = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100")
     assert dataclasses.replace(plain.config, run_dir="") == dataclasses.replace(run.config, run_dir="")
     assert "device_count" not in " ".join(plain.command())
+
+
+def test_every_candidate_is_its_preset_at_the_scale_with_its_changes(tmp_path):
+    """The paper candidates are against_original's run with their changes; the fast preset keeps its batch's
+    ratio to the paper's, so at the scale's batch (the original's) it is the preset's own recipe."""
+    small = runs.SETTINGS["small"]
+
+    def config(name: str):
+        return ttr.candidate_run(tmp_path, small, "walker", name).config
+
+    assert config("paper-2dev").network.initialisation == "original"
+    assert config("paper-flax-2dev").network.initialisation == "flax"
+    assert dataclasses.replace(
+        config("paper-flax-2dev"), network=config("paper-2dev").network, run_dir=""
+    ) == (dataclasses.replace(config("paper-2dev"), run_dir=""))
+    assert config("paper-2dev").td3.batch_size == small.batch_size == 100
+    fast, recipe = config("fast-2dev"), config("fast-c4-k16-u256-b25-2dev")
+    assert fast.td3.batch_size == 25 and fast.iteration.updates == 256
+    assert dataclasses.replace(fast, run_dir="") == dataclasses.replace(recipe, run_dir="")

@@ -25,7 +25,7 @@ from experiments.paper import (
 )
 from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
-from swat_jax.runs.config import PRESETS, TrainConfig
+from swat_jax.runs.config import PAPER, PRESETS, TrainConfig
 
 ORIGINAL = "original (PyTorch)"
 OURS = "swat_jax (paper preset)"
@@ -88,10 +88,17 @@ class Settings:
             iteration=dataclasses.replace(
                 base.iteration, random_steps=self.random_steps, capacity=self.capacity
             ),
-            td3=dataclasses.replace(base.td3, learning_rate=self.learning_rate, batch_size=self.batch_size),
+            td3=dataclasses.replace(
+                base.td3, learning_rate=self.learning_rate, batch_size=self.preset_batch(base)
+            ),
             checkpoint_interval=self.log_interval(environment_set) * 4,
             **fields,
         )
+
+    def preset_batch(self, base: TrainConfig) -> int:
+        """The batch per body of ``base`` at this scale: the scale's (the original's) for a preset of the
+        paper's batch, and in the same ratio for one of its own (the fast preset's 25 to the paper's 100)."""
+        return max(1, round(self.batch_size * base.td3.batch_size / PAPER.td3.batch_size))
 
     def log_interval(self, environment_set: str) -> int:
         """Environment steps (all bodies) between two points of ``environment_set``'s curves."""

@@ -350,8 +350,9 @@ PRESETS: dict[str, TrainConfig] = {
         envs=dataclasses.replace(fixed(PAPER).envs, copies=4),
         network=dataclasses.replace(fixed(PAPER).network, initialisation="flax"),
         iteration=dataclasses.replace(
-            PAPER.iteration, chunk=16, updates=128, schedule="all_tasks", rounds=False
+            PAPER.iteration, chunk=16, updates=256, schedule="all_tasks", rounds=False
         ),
+        td3=dataclasses.replace(PAPER.td3, batch_size=25),
     ),
 }
 """The defaults each preset gives every flag: the paper's, and each other preset's differences from it."""
