@@ -139,7 +139,6 @@ CANDIDATES: dict[str, Candidate] = {
     ),
     "fast-init-2dev": Candidate(initialisation="original"),
     "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
-    "fast-c4-k16-u128-b50-2dev": recipe(4, 16, 128, 50),
     "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
