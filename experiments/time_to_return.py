@@ -138,6 +138,7 @@ CANDIDATES: dict[str, Candidate] = {
         4, 16, 64, 100, learning_rate=3e-3, initialisation="original"
     ),
     "fast-init-2dev": Candidate(initialisation="original"),
+    "fast-lr2e-3-2dev": Candidate(learning_rate=2e-3),
     "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
     "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
@@ -180,6 +181,8 @@ class Curve:
     returns: tuple[dict[int, float], ...]
     seconds: tuple[dict[int, float], ...]
     finals: Final
+    body_finals: dict[str, Final]
+    """Each body's final returns, by body."""
 
     def points(self) -> list[tuple[int, float, float, float]]:
         """(steps, machine seconds per seed, mean return, standard error) at every step where a seed has a
@@ -247,24 +250,34 @@ def candidate_curve(
     if not (run.run_dir / "metrics.csv").is_file():
         return None
     curves = ours_curves(read_metrics(run.run_dir), longer, environment_set, timings.get(run.name))
-    return Curve(
-        name,
-        tuple(c.mean_over_bodies() for c in curves),
-        machine_seconds(curves, host_cores(), len(curves)),
-        final_returns(curves, settings, environment_set),
-    )
+    return _curve(name, curves, settings, environment_set, host_cores(), len(curves))
 
 
 def original_curve(original_out: Path, settings: Settings, environment_set: str) -> Curve | None:
     runs = [run for run in original_runs(original_out, settings, environment_set) if run.finished()]
     if not runs:
         return None
-    curves = [original_curves(run) for run in runs]
+    return _curve(ORIGINAL, [original_curves(run) for run in runs], settings, environment_set, 1, 1)
+
+
+def _curve(
+    name: str,
+    curves: Sequence[SeedCurves],
+    settings: Settings,
+    environment_set: str,
+    cores: float,
+    seeds_at_once: int,
+) -> Curve:
+    """The :class:`Curve` of one configuration's seeds, run ``seeds_at_once`` at a time on ``cores``."""
     return Curve(
-        ORIGINAL,
+        name,
         tuple(c.mean_over_bodies() for c in curves),
-        machine_seconds(curves, 1, 1),
+        machine_seconds(curves, cores, seeds_at_once),
         final_returns(curves, settings, environment_set),
+        {
+            body: final_returns(curves, settings, environment_set, body)
+            for body in get_set(environment_set).train
+        },
     )
 
 
@@ -356,6 +369,26 @@ def set_section(
             f"| {curve.name} | {len(curve.returns)} | {seconds} | {ratio} | {steps} | "
             f"{curve.finals.mean:.1f} ± {curve.finals.standard_error:.1f} | {p} |"
         )
+    return [*lines, "", *body_finals_table(original, candidates)]
+
+
+def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
+    """Each body's final return at the budget by configuration, with Welch's p against the original's:
+    where the mean over bodies gains or loses."""
+    bodies = list(original.body_finals)
+    lines = [
+        "Final return at the budget by body (mean ± standard error over seeds; Welch's p against the original):",
+        "",
+        f"| configuration | {' | '.join(bodies)} |",
+        f"|---|{'---|' * len(bodies)}",
+    ]
+    for curve in [original, *candidates]:
+        cells = []
+        for body in bodies:
+            final = curve.body_finals[body]
+            p = "" if curve is original else f" ({welch(final, original.body_finals[body]):.2f})"
+            cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}")
+        lines.append(f"| {curve.name} | {' | '.join(cells)} |")
     return lines
 
 

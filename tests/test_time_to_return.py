@@ -5,6 +5,7 @@ import csv
 import dataclasses
 import sys
 
+import numpy as np
 import pytest
 from test_against_original import write_original_seed
 
@@ -37,6 +38,23 @@ def test_the_final_return_leaves_out_the_points_past_the_budget():
     assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("walker") == MICRO.budget("walker")
 
 
+def test_the_body_table_shows_the_body_where_a_configuration_falls_short():
+    def curve(name: str, walker_2: list[float], walker_7: list[float]) -> ttr.Curve:
+        finals = {
+            body: returns.Final(np.array(v))
+            for body, v in (("walker_2_main", walker_2), ("walker_7_main", walker_7))
+        }
+        return ttr.Curve(
+            name, (), (), returns.Final(np.mean([f.values for f in finals.values()], axis=0)), finals
+        )
+
+    original = curve(ttr.ORIGINAL, [200.0, 210.0, 190.0], [300.0, 310.0, 290.0])
+    lines = ttr.body_finals_table(original, [curve("fast", [200.0, 212.0, 188.0], [100.0, 110.0, 90.0])])
+    assert "| configuration | walker_2_main | walker_7_main |" in lines
+    assert f"| {ttr.ORIGINAL} | 200.0 ± 5.8 | 300.0 ± 5.8 |" in lines
+    assert "| fast | 200.0 ± 6.9 (1.00) | 100.0 ± 5.8 (0.00) |" in lines
+
+
 def test_an_unknown_candidate_is_refused(tmp_path, capsys):
     status = ttr.main(["--dry-run", "--scale", "micro", "--candidates", "fastest", "--out", str(tmp_path)])
     assert status == 2 and "unknown candidate 'fastest'" in capsys.readouterr().err
@@ -66,6 +84,7 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
     # The original's own curve: 15.5 at 300 (each seed's two rounds there averaged), 19.5 at 600 (90 s).
     assert f"| {ttr.ORIGINAL} | 2 | 90 | 1.00 | 600 | 19.5 ± 0.5 | - |" in report
     assert "| fast | 2 |" in report
+    assert f"| {ttr.ORIGINAL} | 19.5 ± 0.5 | 19.5 ± 0.5 | 19.5 ± 0.5 |" in report, "each body's final return"
     with (out / "hopper.csv").open() as file:
         rows = list(csv.DictReader(file))
     assert {row["configuration"] for row in rows} == {ttr.ORIGINAL, "fast"}

@@ -59,6 +59,16 @@ def linear_init(initialisation: str, role: str, fan_in: int) -> dict[str, Initia
     return {"kernel_init": kernel, "bias_init": bias}
 
 
+def linear(
+    inputs: jax.Array, features: int, initialisation: str, role: str = "default", **dense: Any
+) -> jax.Array:
+    """``nn.Dense(features, **dense)`` made in the calling module and applied to ``inputs`` [..., fan_in] ->
+    [..., features], its weights drawn as ``initialisation`` draws a layer of ``role``
+    (:func:`linear_init`, fan-in ``inputs.shape[-1]``)."""
+    init = linear_init(initialisation, role, inputs.shape[-1])
+    return nn.Dense(features, **init, **dense)(inputs)
+
+
 def embedding_init(initialisation: str) -> dict[str, Initializer]:
     """``nn.Embed`` keyword arguments: empty for Flax's default, N(0, 1) for the original's."""
     return {} if initialisation == "flax" else {"embedding_init": nn.initializers.normal(1.0)}

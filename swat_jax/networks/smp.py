@@ -32,7 +32,7 @@ import numpy as np
 
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.config import NetworkConfig
-from swat_jax.networks.initialisation import linear_init
+from swat_jax.networks.initialisation import Initialisation, linear
 
 NORMALIZE_EPSILON = 1e-12
 
@@ -74,8 +74,7 @@ class MLP(nn.Module):
     hidden: tuple[int, ...]
     outputs: int
     activation: str = "relu"
-    initialisation: str = "flax"
-    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
+    initialisation: Initialisation = "flax"
 
     @nn.compact
     def __call__(self, inputs: jax.Array) -> jax.Array:
@@ -83,10 +82,8 @@ class MLP(nn.Module):
         activation = getattr(jax.nn, self.activation)
         hidden = inputs
         for size in self.hidden:
-            hidden = activation(
-                nn.Dense(size, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
-            )
-        return nn.Dense(self.outputs, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
+            hidden = activation(linear(hidden, size, self.initialisation))
+        return linear(hidden, self.outputs, self.initialisation)
 
 
 class BottomUpStep(nn.Module):
@@ -104,8 +101,9 @@ class BottomUpStep(nn.Module):
         children_messages = jnp.einsum("sj,bjm->bsm", slots[limb], up_messages)
         children_messages = children_messages.reshape(up_messages.shape[0], -1)
         own_input = jnp.take(limb_inputs, limb, axis=1)
-        encoder_init = linear_init(config.initialisation, "default", own_input.shape[-1])
-        encoded = normalize(nn.Dense(config.up_hidden[0], name="input_encoder", **encoder_init)(own_input))
+        encoded = normalize(
+            linear(own_input, config.up_hidden[0], config.initialisation, name="input_encoder")
+        )
         hidden = jnp.tanh(jnp.concatenate([encoded, children_messages], axis=-1))
         message = normalize(
             MLP(config.up_hidden[1:], config.message_width, "tanh", config.initialisation, name="message")(

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES, StructureBatch
 from swat_jax.networks.config import NetworkConfig
-from swat_jax.networks.initialisation import embedding_init, linear_init
+from swat_jax.networks.initialisation import Initialisation, embedding_init, linear
 
 
 def traversal_embedding_widths(width: int, count: int) -> tuple[int, ...]:
@@ -69,12 +69,9 @@ class RelationalEmbedding(nn.Module):
         """[limbs, limbs, 3] relation features (RELATION_NAMES order) -> [heads, limbs, limbs] bias."""
         columns = [RELATION_NAMES.index(name) for name in self.config.relations]
         features = jnp.take(relations, jnp.array(columns), axis=-1)
-        relation_bias = nn.Dense(
-            self.config.heads,
-            use_bias=False,
-            name="g",
-            **linear_init(self.config.initialisation, "default", len(columns)),
-        )(features)
+        relation_bias = linear(
+            features, self.config.heads, self.config.initialisation, use_bias=False, name="g"
+        )
         return jnp.moveaxis(relation_bias, -1, 0)
 
 
@@ -88,8 +85,7 @@ class MaskedMultiHeadAttention(nn.Module):
 
     width: int
     heads: int
-    initialisation: str = "flax"
-    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
+    initialisation: Initialisation = "flax"
 
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None) -> jax.Array:
@@ -97,8 +93,9 @@ class MaskedMultiHeadAttention(nn.Module):
         head_width = self.width // self.heads
 
         def project(name: str, use_bias: bool = True) -> jax.Array:
-            init = linear_init(self.initialisation, "attention_projection", tokens.shape[-1])
-            projected = nn.Dense(self.width, use_bias=use_bias, name=name, **init)(tokens)
+            projected = linear(
+                tokens, self.width, self.initialisation, "attention_projection", use_bias=use_bias, name=name
+            )
             return projected.reshape(*tokens.shape[:-1], self.heads, head_width)
 
         queries, keys, values = project("query"), project("key", use_bias=False), project("value")
@@ -109,8 +106,8 @@ class MaskedMultiHeadAttention(nn.Module):
         attention_weights = jax.nn.softmax(logits, axis=-1)
         self.sow("intermediates", "attention_weights", attention_weights)
         attended = jnp.einsum("bhqk,bkhd->bqhd", attention_weights, values)
-        output_init = linear_init(self.initialisation, "attention_output", self.width)
-        return nn.Dense(self.width, name="output", **output_init)(attended.reshape(tokens.shape))
+        attended = attended.reshape(tokens.shape)
+        return linear(attended, self.width, self.initialisation, "attention_output", name="output")
 
 
 class TransformerLayer(nn.Module):
@@ -127,10 +124,8 @@ class TransformerLayer(nn.Module):
         )(tokens, limb_mask, relation_bias)
         epsilon = config.layer_norm_epsilon
         tokens = nn.LayerNorm(epsilon, name="attention_norm")(tokens + attended)
-        hidden_init = linear_init(config.initialisation, "default", config.width)
-        hidden = nn.relu(nn.Dense(config.feedforward, name="feedforward_hidden", **hidden_init)(tokens))
-        output_init = linear_init(config.initialisation, "default", config.feedforward)
-        transformed = nn.Dense(config.width, name="feedforward_output", **output_init)(hidden)
+        hidden = nn.relu(linear(tokens, config.feedforward, config.initialisation, name="feedforward_hidden"))
+        transformed = linear(hidden, config.width, config.initialisation, name="feedforward_output")
         return nn.LayerNorm(epsilon, name="feedforward_norm")(tokens + transformed)
 
 
@@ -140,8 +135,7 @@ class LimbDecoder(nn.Module):
 
     hidden: tuple[int, ...]
     outputs: int = 1
-    initialisation: str = "flax"
-    """:data:`~swat_jax.networks.initialisation.INITIALISATIONS`."""
+    initialisation: Initialisation = "flax"
 
     @nn.compact
     def __call__(self, tokens: jax.Array, limb_inputs: jax.Array) -> jax.Array:
@@ -149,12 +143,8 @@ class LimbDecoder(nn.Module):
         [batch, limbs, outputs] when ``outputs`` > 1."""
         hidden = jnp.concatenate([tokens, limb_inputs], axis=-1)
         for size in self.hidden:
-            hidden = nn.relu(
-                nn.Dense(size, **linear_init(self.initialisation, "default", hidden.shape[-1]))(hidden)
-            )
-        values = nn.Dense(self.outputs, **linear_init(self.initialisation, "decoder", hidden.shape[-1]))(
-            hidden
-        )
+            hidden = nn.relu(linear(hidden, size, self.initialisation))
+        values = linear(hidden, self.outputs, self.initialisation, "decoder")
         return values[..., 0] if self.outputs == 1 else values
 
 
@@ -179,10 +169,10 @@ class StructureAwareTransformer(nn.Module):
             unspecified values).
         """
         config = self.config
-        encoder_init = linear_init(config.initialisation, "limb_encoder", limb_inputs.shape[-1])
-        tokens = nn.Dense(config.width, name="limb_encoder", **encoder_init)(limb_inputs) * math.sqrt(
-            config.width
+        encoded = linear(
+            limb_inputs, config.width, config.initialisation, "limb_encoder", name="limb_encoder"
         )
+        tokens = encoded * math.sqrt(config.width)
         if config.traversals:
             tokens = tokens + TraversalEmbedding(config, name="traversal_embedding")(
                 structure.traversal_positions
