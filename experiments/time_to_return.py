@@ -90,6 +90,8 @@ class Candidate:
     """A distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
     initialisation: str | None = None
     """Initial weights: flax or original (the original PyTorch code's)."""
+    normalise: bool = False
+    """Observations standardised by running statistics (FastTD3's normaliser)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -104,7 +106,10 @@ class Candidate:
         if self.c51:
             td3 = dataclasses.replace(td3, atoms=51, value_min=-100.0, value_max=400.0)
         envs = dataclasses.replace(scaled.envs, **_given(copies=self.copies))
-        network = dataclasses.replace(scaled.network, **_given(initialisation=self.initialisation))
+        network = dataclasses.replace(
+            scaled.network,
+            **_given(initialisation=self.initialisation, observation_normalisation=self.normalise or None),
+        )
         return dataclasses.replace(scaled, envs=envs, iteration=iteration, td3=td3, network=network)
 
 
@@ -123,6 +128,7 @@ CANDIDATES: dict[str, Candidate] = {
     "paper": Candidate("paper"),
     "paper-2dev": Candidate("paper"),
     "paper-flax-2dev": Candidate("paper", initialisation="flax"),
+    "paper-k250-2dev": Candidate("paper", chunk=250),
     "fast": Candidate(),
     "fast-2dev": Candidate(),
     "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
@@ -139,6 +145,7 @@ CANDIDATES: dict[str, Candidate] = {
     ),
     "fast-init-2dev": Candidate(initialisation="original"),
     "fast-lr2e-3-2dev": Candidate(learning_rate=2e-3),
+    "fast-norm-2dev": Candidate(normalise=True),
     "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
     "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
@@ -150,7 +157,7 @@ CANDIDATES: dict[str, Candidate] = {
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-init`` with the original code's initial weights (``paper-flax``: the
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
@@ -374,7 +381,8 @@ def set_section(
 
 def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
     """Each body's final return at the budget by configuration, with Welch's p against the original's:
-    where the mean over bodies gains or loses."""
+    where the mean over bodies gains or loses. A seed that finished no episode of the body in the budget's
+    last points (episodes longer than that window) is left out, and the cell says how many seeds are in."""
     bodies = list(original.body_finals)
     lines = [
         "Final return at the budget by body (mean ± standard error over seeds; Welch's p against the original):",
@@ -385,9 +393,21 @@ def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]
     for curve in [original, *candidates]:
         cells = []
         for body in bodies:
-            final = curve.body_finals[body]
-            p = "" if curve is original else f" ({welch(final, original.body_finals[body]):.2f})"
-            cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}")
+            values = curve.body_finals[body].values
+            final = Final(values[np.isfinite(values)])
+            if not len(final.values):
+                cells.append("no episode ended")
+                continue
+            reference = original.body_finals[body].values
+            p = (
+                ""
+                if curve is original
+                else f" ({welch(final, Final(reference[np.isfinite(reference)])):.2f})"
+            )
+            seeds = (
+                "" if len(final.values) == len(values) else f", {len(final.values)} of {len(values)} seeds"
+            )
+            cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}{seeds}")
         lines.append(f"| {curve.name} | {' | '.join(cells)} |")
     return lines
 

@@ -53,6 +53,10 @@ def test_the_body_table_shows_the_body_where_a_configuration_falls_short():
     assert "| configuration | walker_2_main | walker_7_main |" in lines
     assert f"| {ttr.ORIGINAL} | 200.0 ± 5.8 | 300.0 ± 5.8 |" in lines
     assert "| fast | 200.0 ± 6.9 (1.00) | 100.0 ± 5.8 (0.00) |" in lines
+    unfinished = curve("fast", [200.0, np.nan, 188.0], [np.nan, np.nan, np.nan])
+    assert "| fast | 194.0 ± 6.0 (0.53), 2 of 3 seeds | no episode ended |" in ttr.body_finals_table(
+        original, [unfinished]
+    ), "a seed without an episode in the window is left out"
 
 
 def test_an_unknown_candidate_is_refused(tmp_path, capsys):

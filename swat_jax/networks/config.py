@@ -61,6 +61,10 @@ class NetworkConfig:
     initialisation: Initialisation = "flax"
     """Initial weights: "flax" (Flax's defaults) or "original" (the original PyTorch code's, every
     transformer layer starting as a copy of the first; :mod:`swat_jax.networks.initialisation`)."""
+    observation_normalisation: bool = False
+    """Standardise every limb feature by running statistics of the observations seen in training, one set
+    over all real limbs (FastTD3's normaliser), in the actor and the critic; the statistics are variables
+    of both networks, so policies carry them (:mod:`swat_jax.networks.observation_stats`)."""
 
     @property
     def sums_limb_values(self) -> bool:

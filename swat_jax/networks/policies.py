@@ -25,11 +25,13 @@ import numpy as np
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.config import NetworkConfig
 from swat_jax.networks.initialisation import copy_first_layer
+from swat_jax.networks.observation_stats import NORMALISER, STATS, ObservationNormaliser
 from swat_jax.networks.smp import SharedModularCritic, SharedModularPolicy, most_children
 from swat_jax.networks.transformer import StructureAwareTransformer
 
 Params = Any
-"""A Flax variables pytree: ``{"params": {...}}``."""
+"""A Flax variables pytree: ``{"params": {...}}``, and ``"observation_stats"`` with observation
+normalisation."""
 
 
 def limb_network(config: NetworkConfig, name: str, outputs: int = 1) -> nn.Module:
@@ -40,6 +42,14 @@ def limb_network(config: NetworkConfig, name: str, outputs: int = 1) -> nn.Modul
     return StructureAwareTransformer(config, outputs, name=name)
 
 
+def normalised(config: NetworkConfig, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
+    """``limb_obs`` [batch, limbs, F] standardised by the network's observation statistics when the config
+    normalises observations, else as given (called inside an actor's or critic's compact method)."""
+    if not config.observation_normalisation:
+        return limb_obs
+    return ObservationNormaliser(name=NORMALISER)(limb_obs, structure.limb_mask)
+
+
 class Actor(nn.Module):
     """Deterministic policy: one action in [-1, 1] per limb (tanh of the per-limb output)."""
 
@@ -48,6 +58,7 @@ class Actor(nn.Module):
     @nn.compact
     def __call__(self, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
         """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]."""
+        limb_obs = normalised(self.config, limb_obs, structure)
         actions = jnp.tanh(limb_network(self.config, "policy")(limb_obs, structure))
         return jnp.where(structure.limb_mask, actions, 0.0)
 
@@ -79,6 +90,7 @@ class Critic(nn.Module):
     ) -> tuple[jax.Array, jax.Array]:
         """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs], or
         [batch, limbs, atoms] logits with atoms (zero on padded limbs)."""
+        limb_obs = normalised(self.config, limb_obs, structure)
         if self.config.architecture == "smp":
             q_values = SharedModularCritic(self.config, name="q")(limb_obs, actions, structure)
         else:
@@ -117,7 +129,8 @@ class LimbNetwork:
     obs_features: int
 
     def init(self, rng: jax.Array) -> Params:
-        """Fresh parameters ({"params": ...}) for observations of ``obs_features`` values a limb."""
+        """Fresh parameters ({"params": ...}, and the observation statistics of a network that normalises)
+        for observations of ``obs_features`` values a limb."""
         structure = torso_only_structure()
         limb_obs = jnp.zeros((1, 1, self.obs_features), jnp.float32)
         inputs = (
@@ -125,10 +138,11 @@ class LimbNetwork:
             if isinstance(self.module, Actor)
             else (limb_obs, jnp.zeros((1, 1)), structure)
         )
-        params = self.module.init(rng, *inputs)["params"]
+        variables = self.module.init(rng, *inputs)
+        params = variables["params"]
         if self.module.config.initialisation == "original":
             params = copy_first_layer(params)
-        return {"params": params}
+        return {"params": params, **({STATS: variables[STATS]} if STATS in variables else {})}
 
     def apply(self, params: Params, *inputs: Any, **kwargs: Any) -> Any:
         """``module.apply``: actor (params, limb_obs, structure), critic (params, limb_obs, actions, structure)."""

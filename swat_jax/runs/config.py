@@ -97,6 +97,8 @@ class NetworkSizes:
     """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
     initialisation: Initialisation = "original"
     """Initial weights: original (the original PyTorch code's, the paper preset: uniform kernels and biases, traversal tables N(0, 1), every transformer layer a copy of the first; docs/fidelity.md, rows 6-11 and 20) or flax (Flax's defaults, the fast preset)."""
+    observation_normalisation: bool = False
+    """Standardise every limb feature by running statistics of the observations collected so far, one set over all real limbs (FastTD3's normaliser), in actor and critic; policy files and exported policies carry the statistics. Off in both presets (docs/training.md)."""
 
     def __post_init__(self) -> None:
         for name in (*NETWORK_SIZES, "smp_hidden"):
@@ -296,6 +298,7 @@ class TrainConfig:
         if self.algo == "smp" and self.network.max_children is None:
             sizes["max_children"] = _most_children(self.training_bodies())
         sizes["initialisation"] = self.network.initialisation
+        sizes["observation_normalisation"] = self.network.observation_normalisation
         if self.network.smp_hidden is not None:
             sizes.update(up_hidden=(self.network.smp_hidden,) * 2, down_hidden=(self.network.smp_hidden,) * 2)
         return network_config(self.algo, **sizes)

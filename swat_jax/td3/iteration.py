@@ -148,9 +148,18 @@ def make_train_iteration(
         explored = over_seeds(explore, in_axes=(0, 0, 0 if config.rounds else None, 0))
         slots = config.chunk * env.copies if config.rounds else config.updates
         update_phase = make_update_phase(structure, learner, config.schedule, slots, seeds, config.rounds)
+        learner_axes = axes.seed_axes(state.learner)
+        observed = over_seeds(
+            lambda learner_state, observations: learner.observe(
+                learner_state, observations, structure.limb_mask[:, None, :]
+            ),
+            in_axes=(learner_axes, 0),
+            out_axes=learner_axes,
+        )
 
-        def collect(state: TrainState, _) -> tuple[TrainState, jax.Array]:
-            """One step of every copy of every task and seed, stored in the replay."""
+        def collect(state: TrainState, _) -> tuple[TrainState, tuple[jax.Array, jax.Array]]:
+            """One step of every copy of every task and seed, stored in the replay; its rewards and the
+            observations it acted on."""
             rng, act_key = split(state.rng)
             action = explored(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
             env_state, result = env.step(state.env, action)
@@ -168,19 +177,21 @@ def make_train_iteration(
                 steps_per_task=state.steps_per_task + env.copies,
                 counted=state.counted + jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32),
             )
-            return next_state, result.reward
+            return next_state, (result.reward, state.env.observation)
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
         counted_before = state.counted
-        state, rewards = jax.lax.scan(collect, state, None, length=config.chunk)
+        state, (rewards, observations) = jax.lax.scan(collect, state, None, length=config.chunk)
         rng, update_key = split(state.rng)
+        # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F].
+        learner_state = observed(state.learner, jnp.moveaxis(observations, 0, 1))
         if config.rounds:
             # The original's per_morph_iter: each task takes (counted steps summed over tasks) // tasks
             # updates; counting from the run's start carries the remainder to the next iteration.
             counts = state.counted // num_tasks - counted_before // num_tasks
-            learner_state, metrics = update_phase(state.learner, state.buffer, update_key, counts)
+            learner_state, metrics = update_phase(learner_state, state.buffer, update_key, counts)
         else:
-            learner_state, metrics = update_phase(state.learner, state.buffer, update_key)
+            learner_state, metrics = update_phase(learner_state, state.buffer, update_key)
         metrics = {
             **metrics,
             "reward": jnp.moveaxis(rewards, 0, 1),  # the scan stacks the chunk in front of the seed axis

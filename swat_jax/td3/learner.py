@@ -37,6 +37,7 @@ from flax import struct
 
 from swat_jax import axes
 from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, bucket_structures
+from swat_jax.networks.observation_stats import NORMALISER, STATS, accumulate, with_stats
 from swat_jax.networks.policies import LimbNetwork, Params
 from swat_jax.td3.replay import Transitions
 
@@ -125,6 +126,20 @@ class Learner:
             actor_optimizer=self.optimizer().init(actor_params),
             critic_optimizer=self.optimizer().init(critic_params),
             critic_steps=jnp.zeros((), jnp.int32),
+        )
+
+    def observe(self, state: LearnerState, observations: jax.Array, limb_mask: jax.Array) -> LearnerState:
+        """``state`` with the observation statistics of its four networks merged with the real limbs of
+        ``observations`` [..., L, F] (``limb_mask`` broadcast against them); unchanged when the networks do
+        not normalise observations (:mod:`swat_jax.networks.observation_stats`)."""
+        if STATS not in state.actor_params:
+            return state
+        stats = accumulate(state.actor_params[STATS][NORMALISER], observations, limb_mask)
+        return state.replace(
+            actor_params=with_stats(state.actor_params, stats),
+            critic_params=with_stats(state.critic_params, stats),
+            target_actor_params=with_stats(state.target_actor_params, stats),
+            target_critic_params=with_stats(state.target_critic_params, stats),
         )
 
     def update(
