@@ -24,6 +24,7 @@ from tensorboardX.proto import event_pb2
 from swat_jax.compilation_cache import lower_built_afresh
 from swat_jax.eval import evaluate
 from swat_jax.networks import NAMED_VARIANTS
+from swat_jax.networks.initialisation import INITIALISATIONS
 from swat_jax.runs.checkpoint import CheckpointError, Checkpoints, flatten
 from swat_jax.runs.config import (
     PRESETS,
@@ -533,6 +534,11 @@ def test_init_from_refuses_networks_that_do_not_fit_naming_both_runs(trained_run
         ConfigError, match=rf"--init-from {trained_run} .*cannot start .*width 16 there, 32 here"
     ):
         Experiment.build(config(network={"width": 32}))
+    with pytest.raises(ConfigError, match="observation_normalisation False there, True here"):
+        Experiment.build(config(network={"observation_normalisation": True}))
+    drawn = load_config(trained_run / "config.json").network.initialisation
+    other = next(name for name in INITIALISATIONS if name != drawn)
+    Experiment.build(config(network={"initialisation": other}))  # how fresh weights are drawn does not matter
     with pytest.raises(ConfigError, match="19 observation features per limb there, 21 here"):
         Experiment.build(config(bodies=("nervenet_hopper",)))
     with pytest.raises(ConfigError, match=r"--init-seed-index 2, but it has 2 seeds \(0, 1\)"):

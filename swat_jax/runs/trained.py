@@ -60,6 +60,11 @@ def newest_info(run_dir: Path, checkpoints: Checkpoints) -> CheckpointInfo:
     return checkpoints.info()
 
 
+INITIAL_ONLY = ("initialisation",)
+"""NetworkConfig fields that only say how fresh weights are drawn: a transfer replaces the weights, so the
+two runs may differ in them."""
+
+
 def check_transfer(config: TrainConfig, observation_features: int) -> None:
     """ConfigError, naming both runs, if run ``config.init_from``'s networks cannot start this run."""
     source_dir = Path(config.init_from)
@@ -75,7 +80,7 @@ def check_transfer(config: TrainConfig, observation_features: int) -> None:
     problems = [
         f"{field.name} {getattr(theirs, field.name)!r} there, {getattr(ours, field.name)!r} here"
         for field in dataclasses.fields(theirs)
-        if getattr(theirs, field.name) != getattr(ours, field.name)
+        if field.name not in INITIAL_ONLY and getattr(theirs, field.name) != getattr(ours, field.name)
     ]
     if info.observation_features != observation_features:
         problems.append(
