@@ -90,7 +90,7 @@ class Candidate:
     """A distributional critic of 51 atoms on [-100, 400] (FastTD3's C51 critic)."""
     initialisation: str | None = None
     """Initial weights: flax or original (the original PyTorch code's)."""
-    normalise: bool = False
+    normalise: bool | None = None
     """Observations standardised by running statistics (FastTD3's normaliser)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
@@ -108,7 +108,7 @@ class Candidate:
         envs = dataclasses.replace(scaled.envs, **_given(copies=self.copies))
         network = dataclasses.replace(
             scaled.network,
-            **_given(initialisation=self.initialisation, observation_normalisation=self.normalise or None),
+            **_given(initialisation=self.initialisation, observation_normalisation=self.normalise),
         )
         return dataclasses.replace(scaled, envs=envs, iteration=iteration, td3=td3, network=network)
 
@@ -393,23 +393,21 @@ def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]
     for curve in [original, *candidates]:
         cells = []
         for body in bodies:
-            values = curve.body_finals[body].values
-            final = Final(values[np.isfinite(values)])
+            runs, final = len(curve.body_finals[body].values), _seeds_with_episodes(curve.body_finals[body])
             if not len(final.values):
                 cells.append("no episode ended")
                 continue
-            reference = original.body_finals[body].values
-            p = (
-                ""
-                if curve is original
-                else f" ({welch(final, Final(reference[np.isfinite(reference)])):.2f})"
-            )
-            seeds = (
-                "" if len(final.values) == len(values) else f", {len(final.values)} of {len(values)} seeds"
-            )
+            reference = _seeds_with_episodes(original.body_finals[body])
+            p = "" if curve is original else f" ({welch(final, reference):.2f})"
+            seeds = "" if len(final.values) == runs else f", {len(final.values)} of {runs} seeds"
             cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}{seeds}")
         lines.append(f"| {curve.name} | {' | '.join(cells)} |")
     return lines
+
+
+def _seeds_with_episodes(final: Final) -> Final:
+    """``final`` without the seeds that finished no episode in the budget's last points (NaN)."""
+    return Final(final.values[np.isfinite(final.values)])
 
 
 def report(

@@ -157,9 +157,9 @@ def make_train_iteration(
             out_axes=learner_axes,
         )
 
-        def collect(state: TrainState, _) -> tuple[TrainState, tuple[jax.Array, jax.Array]]:
-            """One step of every copy of every task and seed, stored in the replay; its rewards and the
-            observations it acted on."""
+        def collect(state: TrainState, _) -> tuple[TrainState, tuple[jax.Array, jax.Array | None]]:
+            """One step of every copy of every task and seed, stored in the replay; its rewards and, for
+            networks that normalise observations, the observations it acted on."""
             rng, act_key = split(state.rng)
             action = explored(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
             env_state, result = env.step(state.env, action)
@@ -177,14 +177,17 @@ def make_train_iteration(
                 steps_per_task=state.steps_per_task + env.copies,
                 counted=state.counted + jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32),
             )
-            return next_state, (result.reward, state.env.observation)
+            observed_now = state.env.observation if learner.normalises_observations else None
+            return next_state, (result.reward, observed_now)
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
         counted_before = state.counted
         state, (rewards, observations) = jax.lax.scan(collect, state, None, length=config.chunk)
         rng, update_key = split(state.rng)
-        # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F].
-        learner_state = observed(state.learner, jnp.moveaxis(observations, 0, 1))
+        learner_state = state.learner
+        if learner.normalises_observations:
+            # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F].
+            learner_state = observed(learner_state, jnp.moveaxis(observations, 0, 1))
         if config.rounds:
             # The original's per_morph_iter: each task takes (counted steps summed over tasks) // tasks
             # updates; counting from the run's start carries the remainder to the next iteration.

@@ -106,6 +106,12 @@ class Learner:
                 f"value_min ({self.config.value_min}) must be below value_max ({self.config.value_max})"
             )
 
+    @property
+    def normalises_observations(self) -> bool:
+        """Whether actor and critic standardise observations by statistics training accumulates
+        (:meth:`observe`)."""
+        return self.actor.module.config.observation_normalisation
+
     def support(self) -> jax.Array:
         """[atoms] the returns the distributional critic's atoms stand for."""
         return jnp.linspace(self.config.value_min, self.config.value_max, self.config.atoms)
@@ -132,7 +138,7 @@ class Learner:
         """``state`` with the observation statistics of its four networks merged with the real limbs of
         ``observations`` [..., L, F] (``limb_mask`` broadcast against them); unchanged when the networks do
         not normalise observations (:mod:`swat_jax.networks.observation_stats`)."""
-        if STATS not in state.actor_params:
+        if not self.normalises_observations:
             return state
         stats = accumulate(state.actor_params[STATS][NORMALISER], observations, limb_mask)
         return state.replace(
