@@ -46,7 +46,7 @@ from swat_jax.runs.trained import network_items
 from swat_jax.td3.evaluation import Episodes
 from swat_jax.td3.iteration import TrainState
 from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
-from swat_jax.td3.sharding import fetch
+from swat_jax.td3.sharding import all_processes_reach, fetch
 
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 """Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
@@ -83,8 +83,24 @@ class TrainCommand(TrainConfig):
     """Several hosts: this process's index, 0 .. num_processes - 1, with --coordinator-address."""
 
     def start_distributed(self) -> None:
-        """Join the other hosts' processes (``jax.distributed.initialize``) when asked to; before any JAX work."""
+        """Join the other hosts' processes (``jax.distributed.initialize``) when asked to; before any JAX work.
+
+        Raises:
+            ConfigError: --num-processes or --process-id without --coordinator-address (the process would
+                train alone), or a --process-id outside 0 .. --num-processes - 1.
+        """
+        if (self.num_processes or self.process_id) and not self.coordinator_address:
+            raise ConfigError(
+                "--num-processes and --process-id go with --coordinator-address HOST:PORT (process 0's); "
+                "under Slurm or Open MPI give --distributed alone"
+            )
         if self.coordinator_address:
+            if not 0 <= self.process_id < self.num_processes:
+                raise ConfigError(
+                    f"--coordinator-address needs --num-processes N (how many processes take part) and "
+                    f"--process-id 0 to N - 1; got --num-processes {self.num_processes} "
+                    f"--process-id {self.process_id}"
+                )
             jax.distributed.initialize(self.coordinator_address, self.num_processes, self.process_id)
         elif self.distributed:
             jax.distributed.initialize()
@@ -186,18 +202,24 @@ def _chosen_devices(count: int) -> list[jax.Device]:
 def prepare_run_dir(config: TrainConfig, *, resume: bool, overwrite: bool) -> Path:
     """Create (or reuse, when resuming) the run directory and write ``config.json``."""
     run_dir = config.directory()
+    existing = run_dir.exists() and any(run_dir.iterdir())
     if resume:
         if not (run_dir / CONFIG_FILE).exists():
             raise ConfigError(f"{run_dir}: no {CONFIG_FILE}; not a run directory to resume")
-    elif run_dir.exists() and any(run_dir.iterdir()):
-        if not overwrite:
-            raise RunExistsError(
-                f"run directory {run_dir} exists; continue it with --resume {run_dir}, start over with "
-                "--overwrite, or pick another --run-dir"
-            )
-        shutil.rmtree(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / CONFIG_FILE).write_text(config.to_json())
+    elif existing and not overwrite:
+        raise RunExistsError(
+            f"run directory {run_dir} exists; continue it with --resume {run_dir}, start over with "
+            "--overwrite, or pick another --run-dir"
+        )
+    # Several hosts share the directory: every process checks it before process 0 alone changes it, and
+    # none goes on before it has.
+    all_processes_reach("swat_jax run directory checked")
+    if jax.process_index() == 0:
+        if existing and not resume:
+            shutil.rmtree(run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / CONFIG_FILE).write_text(config.to_json())
+    all_processes_reach("swat_jax run directory written")
     return run_dir
 
 
@@ -241,17 +263,20 @@ def train(
     print(
         check_buffer_fits(
             env.num_bodies,
-            config.iteration.capacity,
+            experiment.replay_rows,
             env.max_limbs,
             env.observation_features,
             free_memory_bytes(),
             seeds=config.seeds,
             flag="--iteration.capacity",
+            why=_replay_rows_why(config, experiment.replay_rows),
         )
     )
     run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
     checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
     try:
+        for line in checkpoints.set_aside_damaged() if resume else ():
+            print(line)
         if resume and checkpoints.latest_step() is not None:
             state, info = experiment.restore_state(checkpoints)
             print(f"resumed from {checkpoints.directory / str(info.env_steps)}")
@@ -271,6 +296,16 @@ def train(
         checkpoints.close()
 
 
+def _replay_rows_why(config: TrainConfig, rows: int) -> str:
+    """Why each replay ring has ``rows`` rows, for the start-up line."""
+    if rows < config.iteration.capacity:
+        return (
+            f": what {config.steps:,} steps store, rounded up to a power of two, below --iteration.capacity "
+            f"{config.iteration.capacity:,}"
+        )
+    return ": --iteration.capacity"
+
+
 def _loop(
     experiment: Experiment,
     state: TrainState,
@@ -282,7 +317,7 @@ def _loop(
 ) -> RunResult:
     config, env = experiment.config, experiment.env
     per_iteration = config.steps_per_iteration(env.num_bodies)
-    total = max(1, math.ceil(config.steps / per_iteration))
+    total = config.iterations(env.num_bodies)
     log_every = max(1, round(config.log_interval / per_iteration))
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
     done = info.iterations

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swat_jax.td3 import Transitions, buffer_bytes, init_buffer, insert, sample
-from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes
+from swat_jax.td3.replay import check_buffer_fits, free_memory_bytes, resized
 
 TASKS, CAPACITY, LIMBS, FEATURES, COPIES = 3, 10, 4, 2, 4
 
@@ -73,3 +73,37 @@ def test_buffer_check_reports_gib_and_names_the_flag_to_lower():
     fitting = int(str(error.value).rsplit(" ", 1)[1].replace(",", ""))
     assert buffer_bytes(5, fitting, 13, 21) <= 0.8 * 4 * 2**30 < buffer_bytes(5, fitting + 1, 13, 21)
     assert free_memory_bytes() > 0
+
+
+def inserted(buffer, inserts: int, first: int = 0):
+    for i in range(first, first + inserts):
+        buffer = jax.jit(insert)(buffer, numbered_batch(i * COPIES))
+    return buffer
+
+
+@pytest.mark.parametrize("rows", [8, 12, 20])
+def test_a_resized_ring_holds_and_samples_what_a_ring_of_its_size_would(rows):
+    """2 inserts of 4 rows into a ring of 10, resized to ``rows`` (>= 8: nothing lost), then 1 more insert:
+    every array, the write position and the samples equal those of a ring of ``rows`` given all 3 inserts
+    (12 rows into 8: the ring wraps after the resize as it would have)."""
+    grown = inserted(resized(filled(2), rows, stored=2 * COPIES), 1, first=2)
+    direct = inserted(init_buffer(TASKS, rows, LIMBS, FEATURES), 3)
+    assert jax.tree.all(jax.tree.map(np.array_equal, grown, direct))
+    key = jax.random.key(3)
+    assert jax.tree.all(jax.tree.map(np.array_equal, sample(grown, key, 16), sample(direct, key, 16)))
+
+
+def test_a_resize_refuses_to_lose_rows():
+    with pytest.raises(ValueError, match="8 rows stored per task do not fit a ring of 6 rows"):
+        resized(filled(2), 6, stored=2 * COPIES)
+    with pytest.raises(
+        ValueError, match="12 rows stored per task do not fit a ring of 20 rows resized from 10"
+    ):
+        resized(filled(3), 20, stored=3 * COPIES)
+
+
+def test_a_seeded_buffer_resizes_on_its_ring_axis():
+    seeded = jax.tree.map(lambda leaf: jnp.stack([leaf, leaf * 2]), filled(1).data)
+    buffer = resized(filled(1).replace(data=seeded), 6, stored=COPIES, ring_axis=2)
+    assert buffer.data.observation.shape == (2, TASKS, 6, LIMBS, FEATURES)
+    np.testing.assert_array_equal(buffer.data.reward[1, 1], [2000, 2002, 2004, 2006, 0, 0])

@@ -5,29 +5,31 @@ from __future__ import annotations
 
 import shutil
 
-import numpy as np
 import pytest
+from checkpoint_states import STATE, info_at
 from conftest import tiny_train_config
 
 from swat_jax.eval import main as eval_main
 from swat_jax.runs.checkpoint import ERROR_LOG, CheckpointError, CheckpointInfo, Checkpoints
 from swat_jax.runs.config import CONFIG_FILE, ConfigError
 from swat_jax.runs.experiment import Experiment
+from swat_jax.runs.integrity import write_record
 
 
 def test_an_unreadable_checkpoint_fits_on_a_screen_and_logs_the_detail(tmp_path):
-    state = {"weights": np.arange(4096, dtype=np.float32).reshape(64, 64)}
+    """A checkpoint whose record checks out but that Orbax cannot read (damaged before its record was
+    written, or written by another Orbax): one line, the detail in ERROR_LOG."""
     checkpoints = Checkpoints(tmp_path)
-    info = CheckpointInfo(100, 1, 1.0, seeds=(0,), bodies=("hopper_3",), max_limbs=4, observation_features=19)
-    checkpoints.save(state, {"actor": state}, info)
-    for chunk in (tmp_path / "checkpoints" / "100" / "actor").rglob("d/*"):
-        chunk.write_bytes(b"not a chunk")
+    checkpoints.save(STATE, {"actor": STATE}, info_at(100))
+    folder = tmp_path / "checkpoints" / "100"
+    (folder / "actor" / "_METADATA").write_text("not JSON")
+    write_record(folder)
     with pytest.raises(CheckpointError) as raised:
-        checkpoints.restore_item("actor", state)
+        checkpoints.restore_item("actor", STATE)
     checkpoints.close()
     message = str(raised.value)
     assert len(message) < 600 and "\n" not in message, message
-    assert f"{tmp_path / 'checkpoints' / '100'} is unreadable" in message
+    assert f"{folder} is unreadable" in message
     assert "delete that folder" in message and str(tmp_path / ERROR_LOG) in message
     assert "Traceback" in (tmp_path / ERROR_LOG).read_text()
 
@@ -68,3 +70,15 @@ def test_a_network_too_small_for_the_bodies_names_body_limbs_and_flag(tmp_path, 
         Experiment.build(config)
     assert "hopper_3 has 3 limbs, more than the 2 positions of each traversal table" in str(raised.value)
     assert "train with --network.max-traversal-positions 3 or more" in str(raised.value)
+
+
+def test_eval_of_a_damaged_checkpoint_names_it_and_why_in_one_line(trained_run, tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained_run, run_dir)
+    actor = run_dir / "checkpoints" / "600" / "actor"
+    largest = max((p for p in actor.rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+    largest.write_bytes(largest.read_bytes()[:-1])
+    assert eval_main([str(run_dir)]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert f"{run_dir / 'checkpoints' / '600'} is damaged: actor/" in line
+    assert "bytes where" in line and f"--resume {run_dir} sets it aside" in line

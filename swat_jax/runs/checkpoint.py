@@ -14,16 +14,16 @@ A checkpoint is one step folder under ``RUN_DIR/checkpoints/<env steps>/`` with 
   policy needs to be rebuilt (seeds, bodies, padded limb count, observation features).
 
 Orbax writes each step to a temporary folder and renames it when complete, so an interrupted write
-leaves the previous checkpoint intact.
+leaves the previous checkpoint intact. When the save is complete, the step folder gains a record of every
+file it holds (:mod:`swat_jax.runs.integrity`), and nothing of a checkpoint is read before that record
+checks out: a damaged checkpoint is refused with the reason, and a resumed run sets it aside and continues
+from the newest intact one (:meth:`Checkpoints.set_aside_damaged`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import logging
-import sys
 import traceback
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
+
+from swat_jax.runs.integrity import damage, write_record
+from swat_jax.td3.sharding import all_processes_reach
 
 MAX_LISTED = 5
 """Mismatched arrays named in an error message."""
@@ -40,15 +43,10 @@ ERROR_LOG = "checkpoint_error.log"
 """File in the run directory that holds the whole error of the last unreadable checkpoint."""
 TENSORSTORE_DETAIL = "See full TensorStore details"
 """Where TensorStore's read errors start appending their whole spec (dozens of lines)."""
-ORBAX_DIR = Path(ocp.__file__).parent
-"""Orbax's source folder: the coroutines of a failed restore that are closed unfinished are defined there."""
-CLOSED_LOOP = "Event loop is closed"
-"""What TensorStore's callback of a read that ends after its restore failed raises on the closed loop."""
-UNRETRIEVED = "Task exception was never retrieved"
-"""How asyncio's logger reports a task that failed and was collected unread (a failed restore's reads)."""
-
-
-ASYNCIO_LOG = logging.getLogger("asyncio")
+DAMAGED_DIR = "damaged_checkpoints"
+"""Folder of the run directory where a resumed run moves the checkpoints it refused."""
+UNFINISHED = ".orbax-checkpoint-tmp"
+"""In the name of the temporary folder of a save that never finished (Orbax renames it when it does)."""
 
 
 class CheckpointError(RuntimeError):
@@ -146,13 +144,15 @@ class Checkpoints:
         self.manager = ocp.CheckpointManager(
             self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
         )
+        self.checked: set[tuple[int, str | None]] = set()
+        """(step, item) pairs whose record checked out (item None: the whole checkpoint)."""
 
     def latest_step(self) -> int | None:
         """Environment steps of the newest complete checkpoint, or None."""
         return self.manager.latest_step()
 
     def save(self, state: Any, networks: dict[str, Any], info: CheckpointInfo) -> None:
-        """Write a checkpoint named by ``info.env_steps`` and wait until it is on disk.
+        """Write a checkpoint named by ``info.env_steps``, wait until it is on disk, then record what it holds.
 
         Args:
             networks: the ``actor`` and ``critic`` items (pytrees of arrays), read alone by
@@ -169,11 +169,62 @@ class Checkpoints:
             force=True,
         )
         self.manager.wait_until_finished()
+        # Several hosts: every process has written its shards before process 0 records them.
+        all_processes_reach("swat_jax checkpoint written")
+        if jax.process_index() == 0:
+            write_record(self._path(info.env_steps))
+        all_processes_reach("swat_jax checkpoint recorded")
+
+    def set_aside_damaged(self) -> list[str]:
+        """Move the checkpoints newer than the newest intact one, and unfinished saves, to DAMAGED_DIR.
+
+        Returns one line for each, naming it, why it was refused and where it went; the newest checkpoint
+        is then intact. CheckpointError, moving nothing, if there are checkpoints and none is intact.
+        """
+        refused = []
+        for step in sorted(self.manager.all_steps(), reverse=True):
+            reason = damage(self._path(step))
+            if reason is None:
+                self.checked.add((step, None))
+                break
+            refused.append((self._path(step), reason))
+        else:
+            if refused:
+                reasons = "; ".join(f"{path.name}: {reason}" for path, reason in refused)
+                raise CheckpointError(
+                    f"no intact checkpoint in {self.directory} ({reasons}); start the run again with --overwrite"
+                )
+        refused += [
+            (path, "its save never finished") for path in sorted(self.directory.glob(f"*{UNFINISHED}*"))
+        ]
+        aside = self.directory.parent / DAMAGED_DIR
+        targets = [_free_name(aside / path.name) for path, _ in refused]
+        all_processes_reach("swat_jax checkpoints checked")
+        if refused and jax.process_index() == 0:
+            aside.mkdir(exist_ok=True)
+            for (path, _), target in zip(refused, targets, strict=True):
+                path.rename(target)
+        all_processes_reach("swat_jax checkpoints set aside")
+        if refused:
+            self.manager.reload()
+        return [
+            f"refused {path}: {reason}; moved to {target}"
+            for (path, reason), target in zip(refused, targets, strict=True)
+        ]
+
+    def saved_shape(self, key: str, template: Any) -> tuple[int, ...]:
+        """The shape of array ``key`` (a key of :func:`flatten`) in the newest checkpoint, or in ``template``
+        if the checkpoint has no such array (:meth:`restore` then says what differs)."""
+        step = self._latest()
+        self._check(step, ["manifest"])
+        saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
+        return tuple(saved[key][0]) if key in saved else tuple(flatten(template)[key].shape)
 
     def restore(self, template: Any, shardings: Any) -> tuple[Any, CheckpointInfo]:
         """The newest checkpoint's state (shaped like ``template``, placed as ``shardings``, a matching
         pytree of shardings, whatever devices wrote it) and info."""
         step = self._latest()
+        self._check(step, ["manifest", "state", "info"])
         saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
         expected = manifest(template)
         if saved != expected:
@@ -223,28 +274,30 @@ class Checkpoints:
     def _path(self, step: int) -> Path:
         return self.directory / str(step)
 
-    def _read(self, step: int, **items: Any) -> Any:
-        """The ``items`` of checkpoint ``step``; CheckpointError if any is unreadable.
+    def _check(self, step: int, items: list[str]) -> None:
+        """CheckpointError, before anything of checkpoint ``step`` is read, if its record does not check out
+        for ``items``."""
+        if (step, None) in self.checked or all((step, item) in self.checked for item in items):
+            return
+        if reason := damage(self._path(step), items):
+            raise CheckpointError(
+                f"{self._path(step)} is damaged: {reason}; nothing of it was read "
+                f"(python -m swat_jax.train --resume {self.directory.parent} sets it aside and continues "
+                "from the newest intact checkpoint)"
+            )
+        self.checked |= {(step, item) for item in items}
 
-        A read that fails leaves Orbax's other reads of the step in flight on an event loop Orbax closes:
-        each reports, when it ends or is garbage collected, an exception nobody can catch (TensorStore's
-        "Event loop is closed", on its own threads, for as long as the process runs). Those reports are
-        dropped (:class:`AbandonedReadsFilter`), from the restore on, and after a failed one for good.
-        """
-        previous = sys.unraisablehook
-        abandoned = previous if isinstance(previous, AbandonedReadsFilter) else AbandonedReadsFilter(previous)
-        sys.unraisablehook = abandoned
-        ASYNCIO_LOG.addFilter(abandoned)
+    def _read(self, step: int, **items: Any) -> Any:
+        """The ``items`` of checkpoint ``step``, after its record checked out; CheckpointError if it does not,
+        or if Orbax cannot read what was recorded (written by another version of it, say)."""
+        self._check(step, list(items))
         try:
-            restored = self.manager.restore(step, args=ocp.args.Composite(**items))
+            return self.manager.restore(step, args=ocp.args.Composite(**items))
         except Exception as error:
             raise CheckpointError(
                 f"{self._path(step)} is unreadable ({_summary(error)}); delete that folder to fall back to "
                 f"the previous checkpoint. {self._log_error(step, error)}"
             ) from error
-        sys.unraisablehook = previous
-        ASYNCIO_LOG.removeFilter(abandoned)
-        return restored
 
     def _log_error(self, step: int, error: Exception) -> str:
         """Write the whole of ``error`` (TensorStore's runs to a screen or more) to ERROR_LOG; say where."""
@@ -257,32 +310,12 @@ class Checkpoints:
         return f"The full error is in {log}"
 
 
-class AbandonedReadsFilter:
-    """A ``sys.unraisablehook`` and a filter of asyncio's logger that drop what the reads of a failed
-    restore report after it, and pass everything else on (to ``hook``, or to the log): TensorStore's
-    callbacks of reads that end on the closed event loop (RuntimeError "Event loop is closed", no object),
-    the exceptions Orbax's unfinished read coroutines raise when they are closed (the coroutine as object),
-    and asyncio's "Task exception was never retrieved" of the failed read tasks, Orbax's coroutines."""
-
-    def __init__(self, hook: Callable[[Any], object]):
-        self.hook = hook
-
-    def __call__(self, unraisable: sys.UnraisableHookArgs) -> None:
-        if not _abandoned_read(unraisable):
-            self.hook(unraisable)
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        """False for asyncio's report of a failed read task of Orbax's."""
-        message = record.getMessage()
-        return not (message.startswith(UNRETRIEVED) and str(ORBAX_DIR) in message)
-
-
-def _abandoned_read(unraisable: sys.UnraisableHookArgs) -> bool:
-    """Whether ``unraisable`` is reported by a read of a failed restore (see :class:`AbandonedReadsFilter`)."""
-    if unraisable.object is None:
-        return isinstance(unraisable.exc_value, RuntimeError) and str(unraisable.exc_value) == CLOSED_LOOP
-    code = getattr(unraisable.object, "cr_code", None)
-    return code is not None and Path(code.co_filename).is_relative_to(ORBAX_DIR)
+def _free_name(path: Path) -> Path:
+    """``path``, or ``path`` with the first suffix -1, -2, ... that names nothing yet."""
+    free, copy = path, 1
+    while free.exists():
+        free, copy = path.with_name(f"{path.name}-{copy}"), copy + 1
+    return free
 
 
 def _summary(error: Exception) -> str:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 import typing
 from pathlib import Path
 from typing import Any, Literal
@@ -328,6 +329,20 @@ class TrainConfig:
     def steps_per_iteration(self, num_bodies: int) -> int:
         """Environment steps, summed over bodies, of one iteration."""
         return num_bodies * self.envs.copies * self.iteration.chunk
+
+    def iterations(self, num_bodies: int) -> int:
+        """Iterations of the whole run: ``steps`` rounded up to whole iterations (at least one)."""
+        return max(1, math.ceil(self.steps / self.steps_per_iteration(num_bodies)))
+
+    def replay_rows(self, num_bodies: int) -> int:
+        """Rows of each task's replay ring: the transitions the run stores per task (every copy's steps of
+        every iteration) rounded up to a power of two, or ``iteration.capacity`` when that is smaller.
+
+        A ring that the run cannot overfill holds what the full-size one would: it is never overwritten, so
+        it samples the same rows. The rounding lets budgets within a factor of two of each other share one
+        compiled program (the ring's size is one of its shapes), for at most twice the rows filled."""
+        stored = self.iterations(num_bodies) * self.iteration.chunk * self.envs.copies
+        return min(self.iteration.capacity, 1 << (stored - 1).bit_length())
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2) + "\n"

@@ -26,13 +26,19 @@ from swat_jax.networks import (
     task_set,
 )
 from swat_jax.runs import programs
-from swat_jax.runs.checkpoint import CheckpointInfo, Checkpoints
+from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
 from swat_jax.runs.config import ConfigError, TrainConfig
 from swat_jax.runs.trained import check_transfer, network_items, restore_networks
 from swat_jax.td3.evaluation import Episodes, make_evaluation
 from swat_jax.td3.iteration import TrainState, init_train_state, make_train_iteration, seed_keys
 from swat_jax.td3.learner import Learner, LearnerState
+from swat_jax.td3.replay import resized
 from swat_jax.td3.sharding import Placement, placement
+
+RING_AXIS = 2
+"""The ring axis of the replay arrays of a TrainState: [seeds, tasks, rows, ...]."""
+REPLAY_ROWS_KEY = ".buffer.data.reward"
+"""The checkpointed array whose shape gives the replay rings' rows."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +52,8 @@ class Experiment:
     learner: Learner
     placement: Placement
     """The device mesh of the run's arrays (:mod:`swat_jax.td3.sharding`)."""
+    replay_rows: int
+    """Rows of each task's replay ring (:meth:`TrainConfig.replay_rows`)."""
 
     @classmethod
     def build(cls, config: TrainConfig, devices: Sequence[jax.Device] | None = None) -> Experiment:
@@ -80,7 +88,8 @@ class Experiment:
             if config.limb_buckets > 1 and not layout.tasks_split
             else ()
         )
-        return cls(config, tasks, env, Learner(actor, critic, config.td3, buckets), layout)
+        learner = Learner(actor, critic, config.td3, buckets)
+        return cls(config, tasks, env, learner, layout, config.replay_rows(env.num_bodies))
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
@@ -98,7 +107,8 @@ class Experiment:
             return jax.jit(self._initial_state, out_shardings=shardings)
 
         keys = self._seed_keys()
-        state = compile_cached("init_state", initial_state, (keys,), self._recipe(self.env))(keys)
+        recipe = self._recipe(self.env, self.replay_rows)
+        state = compile_cached("init_state", initial_state, (keys,), recipe)(keys)
         if self.config.init_from:
             state = state.replace(learner=self._transferred(state.learner))
         return self._placed(state)
@@ -122,9 +132,28 @@ class Experiment:
     def restore_state(self, checkpoints: Checkpoints) -> tuple[TrainState, CheckpointInfo]:
         """The newest checkpoint's training state, placed exactly as :meth:`init_state` places a fresh one
         (whatever mesh wrote it), and its info (CheckpointError if it is missing, unreadable or does not
-        match)."""
+        match).
+
+        A checkpoint whose replay rings have another size (the run resumed with another ``--steps``, or
+        written when rings were always ``iteration.capacity`` rows) is read at its size and resized to
+        :attr:`replay_rows`, exactly, when what it stored fits; else CheckpointError.
+        """
         shapes = self.state_shapes
+        rows = checkpoints.saved_shape(REPLAY_ROWS_KEY, shapes)[RING_AXIS]
+        if rows != self.replay_rows:
+            shapes = shapes.replace(
+                buffer=jax.eval_shape(lambda b: resized(b, rows, 0, RING_AXIS), shapes.buffer)
+            )
         state, info = checkpoints.restore(shapes, self.placement.state_shardings(shapes))
+        if rows != self.replay_rows:
+            stored = int(state.steps_per_task)
+            if stored > min(rows, self.replay_rows):
+                raise CheckpointError(
+                    f"{checkpoints.directory / str(info.env_steps)} holds {stored:,} transitions per task, more "
+                    f"than the {self.replay_rows:,}-row replay rings of --steps {self.config.steps:,} take: "
+                    f"resume with --steps {info.env_steps:,} or more"
+                )
+            state = state.replace(buffer=resized(state.buffer, self.replay_rows, stored, RING_AXIS))
         return self._placed(state), info
 
     @functools.cached_property
@@ -137,7 +166,8 @@ class Experiment:
     def _initial_state(self) -> Callable[[jax.Array], TrainState]:
         """The fresh state of every seed from their keys [S]; one function object, so that JAX's trace
         cache serves :attr:`state_shapes` and :meth:`init_state` with one trace."""
-        return functools.partial(init_train_state, self.env, self.learner, self.config.iteration)
+        iteration = dataclasses.replace(self.config.iteration, capacity=self.replay_rows)
+        return functools.partial(init_train_state, self.env, self.learner, iteration)
 
     def _placed(self, state: TrainState) -> TrainState:
         """Every array of ``state`` committed to its place on the mesh.
@@ -183,10 +213,11 @@ class Experiment:
         """The train bodies with ``config.eval_episodes`` copies each, for every seed."""
         return make_env(self.config, self.tasks.bodies, self.config.eval_episodes, self.config.seeds)
 
-    def _recipe(self, env: MultiTaskEnv) -> tuple[Any, ...] | None:
+    def _recipe(self, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:
         """The program cache's recipe of a program of this run on ``env`` (:mod:`swat_jax.runs.programs`),
-        with the mesh the programs place their outputs on."""
-        return programs.recipe(self.config, env, self.placement, self.placement.mesh.device_ids.tolist())
+        with the mesh the programs place their outputs on, and ``extra``."""
+        mesh = self.placement.mesh.device_ids.tolist()
+        return programs.recipe(self.config, env, self.placement, mesh, *extra)
 
     def checkpoint_info(
         self, env_steps: int, iterations: int, seconds: float, **extra: Any

@@ -71,7 +71,7 @@ class IterationConfig:
     exploration_noise_max: float | None = None
     """With it, each copy of a body explores with its own noise std, spread evenly from exploration_noise (the first copy) to this (the last), so one run explores both near its policy and far from it (FastTD3's noise drawn per environment, Seo et al. 2025); None: every copy exploration_noise."""
     capacity: int = 500_000
-    """Replay rows per task (the paper: 500K)."""
+    """Replay rows per task (the paper: 500K); a run whose --steps store fewer per task gets rings of those rows rounded up to a power of two, which hold what the full ones would."""
 
 
 def exploration_scales(config: IterationConfig, copies: int) -> jax.Array:

@@ -87,6 +87,7 @@ def check_buffer_fits(
     *,
     seeds: int = 1,
     flag: str = "--iteration.capacity",
+    why: str = "",
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
 
@@ -94,13 +95,14 @@ def check_buffer_fits(
         free_bytes: memory available for the buffers' device (see :func:`free_memory_bytes`).
         seeds: independent runs, each with its own buffers.
         flag: the option that sets ``capacity``, named in the error.
+        why: why the buffers have ``capacity`` rows, appended to the report.
     """
     needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features)
     usable = int(USABLE_FRACTION * free_bytes)
     runs = f"{seeds} seeds x " if seeds > 1 else ""
     report = (
         f"replay buffers: {needed / GIB:.2f} GiB ({runs}{tasks} tasks x {capacity:,} transitions x "
-        f"{max_limbs} limbs x {features} features)"
+        f"{max_limbs} limbs x {features} features{why})"
     )
     if needed > usable:
         fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features))
@@ -124,6 +126,37 @@ def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> Rep
         ),
         position=jnp.zeros((), jnp.int32),
         size=jnp.zeros((), jnp.int32),
+    )
+
+
+def resized(buffer: ReplayBuffer, rows: int, stored: int, ring_axis: int = 1) -> ReplayBuffer:
+    """``buffer`` with rings of ``rows`` rows per task holding what a ring of that size would hold after the
+    same inserts: ``stored`` rows per task, written in order from row 0 and never overwritten.
+
+    Args:
+        buffer: its data's ring axis is ``ring_axis`` (1 for one seed's [T, C, ...], 2 with a seed axis in
+            front); its rows past ``stored`` are empty.
+        rows: the new ring size, at least ``stored``.
+
+    Raises:
+        ValueError: ``stored`` exceeds ``rows`` or the old ring (some rows would be lost, or were overwritten).
+    """
+    old_rows = buffer.data.reward.shape[ring_axis]
+    if stored > min(rows, old_rows):
+        raise ValueError(
+            f"{stored:,} rows stored per task do not fit a ring of {rows:,} rows resized from {old_rows:,}"
+        )
+
+    def fit(leaf: jax.Array) -> jax.Array:
+        kept = jax.lax.slice_in_dim(leaf, 0, min(rows, old_rows), axis=ring_axis)
+        padding = [(0, 0)] * leaf.ndim
+        padding[ring_axis] = (0, rows - kept.shape[ring_axis])
+        return jnp.pad(kept, padding)
+
+    return ReplayBuffer(
+        data=jax.tree_util.tree_map(fit, buffer.data),
+        position=jnp.asarray(stored % rows, jnp.int32),
+        size=jnp.asarray(stored, jnp.int32),
     )
 
 

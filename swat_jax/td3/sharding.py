@@ -121,3 +121,10 @@ def fetch(tree: Any) -> Any:
     if jax.process_count() == 1:
         return jax.device_get(tree)
     return multihost_utils.process_allgather(tree, tiled=True)
+
+
+def all_processes_reach(name: str) -> None:
+    """Wait until every process of a run over several hosts has reached the barrier ``name`` (nothing with one
+    process)."""
+    if jax.process_count() > 1:
+        multihost_utils.sync_global_devices(name)
