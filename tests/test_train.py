@@ -141,16 +141,16 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, h
 def test_the_replay_holds_what_the_run_stores_and_grows_when_a_resume_raises_the_budget(
     trained_run, hopper_folder, tmp_path, capsys
 ):
-    """Rings of the rows a budget stores, to the next power of two (300 steps of 2 copies: 300 per task, 512
-    rows, below the capacity of 1,000); resumed with --steps 600 they grow to the capacity and the run ends
-    as the uninterrupted 600-step run did."""
-    config = tiny_train_config(tmp_path / "grown", hopper_folder, steps=300)
+    """Rings of the rows a budget stores, to the next power of two (100 steps of 2 copies: 100 per task, 128
+    rows, below the capacity of 1,000; the program of the other 100-step runs here); resumed with --steps 600
+    they grow to the capacity and the run ends as the uninterrupted 600-step run did."""
+    config = tiny_train_config(tmp_path / "grown", hopper_folder, steps=100)
     train(config, progress=False)
     first = capsys.readouterr().out
     assert (
-        "(2 seeds x 1 tasks x 512 transitions x 3 limbs x 19 features: what 300 steps store, rounded" in first
+        "(2 seeds x 1 tasks x 128 transitions x 3 limbs x 19 features: what 100 steps store, rounded" in first
     )
-    assert final_state(tmp_path / "grown")[0].buffer.data.reward.shape == (2, 1, 512)
+    assert final_state(tmp_path / "grown")[0].buffer.data.reward.shape == (2, 1, 128)
     train(dataclasses.replace(config, steps=600), resume=True, progress=False)
     assert (
         "1 tasks x 1,000 transitions x 3 limbs x 19 features: --iteration.capacity)"

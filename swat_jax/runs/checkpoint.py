@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import traceback
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,8 @@ TENSORSTORE_DETAIL = "See full TensorStore details"
 """Where TensorStore's read errors start appending their whole spec (dozens of lines)."""
 DAMAGED_DIR = "damaged_checkpoints"
 """Folder of the run directory where a resumed run moves the checkpoints it refused."""
+RESTORED = ("manifest", "state", "info")
+"""The items :meth:`Checkpoints.restore` reads, checked before the first of them is read."""
 UNFINISHED = ".orbax-checkpoint-tmp"
 """In the name of the temporary folder of a save that never finished (Orbax renames it when it does)."""
 
@@ -214,9 +217,10 @@ class Checkpoints:
 
     def saved_shape(self, key: str, template: Any) -> tuple[int, ...]:
         """The shape of array ``key`` (a key of :func:`flatten`) in the newest checkpoint, or in ``template``
-        if the checkpoint has no such array (:meth:`restore` then says what differs)."""
+        if the checkpoint has no such array (:meth:`restore` then says what differs). Read before
+        :meth:`restore`, so it checks what that reads."""
         step = self._latest()
-        self._check(step, ["manifest"])
+        self._check(step, RESTORED)
         saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
         return tuple(saved[key][0]) if key in saved else tuple(flatten(template)[key].shape)
 
@@ -224,7 +228,7 @@ class Checkpoints:
         """The newest checkpoint's state (shaped like ``template``, placed as ``shardings``, a matching
         pytree of shardings, whatever devices wrote it) and info."""
         step = self._latest()
-        self._check(step, ["manifest", "state", "info"])
+        self._check(step, RESTORED)
         saved = self._read(step, manifest=ocp.args.JsonRestore())["manifest"]
         expected = manifest(template)
         if saved != expected:
@@ -274,7 +278,7 @@ class Checkpoints:
     def _path(self, step: int) -> Path:
         return self.directory / str(step)
 
-    def _check(self, step: int, items: list[str]) -> None:
+    def _check(self, step: int, items: Sequence[str]) -> None:
         """CheckpointError, before anything of checkpoint ``step`` is read, if its record does not check out
         for ``items``."""
         if (step, None) in self.checked or all((step, item) in self.checked for item in items):
