@@ -101,7 +101,7 @@ class ReportSettings:
     train_seeds: int = 5
     """Seeds in each training program."""
     train_seconds: float = 90.0
-    """Wall seconds of each training run, start-up included."""
+    """Wall seconds of each training run, start-up included (a run goes on to its first metrics row)."""
     train_flags: tuple[str, ...] = ()
     """More ``swat_jax.train`` flags of every training run (none: the preset's paper-sized network)."""
 
@@ -178,8 +178,8 @@ def update_worker(
 def training_worker(
     set_name: str, preset: str, seeds: int, seconds: float, flags: list[str]
 ) -> dict[str, Any]:
-    """Train ``preset`` on ``set_name`` for ``seconds`` of wall clock (then SIGINT: the run checkpoints and
-    exits) and read its metrics: per row, the wall seconds since the command started (the rows' own
+    """Train ``preset`` on ``set_name`` for ``seconds`` of wall clock, and at least until its first metrics
+    row (then SIGINT: the run checkpoints and exits), and read its metrics: per row, the wall seconds since the command started (the rows' own
     steps per second, the start-up before the first row included), steps per seed and the mean return
     over seeds of the training episodes."""
     with tempfile.TemporaryDirectory(prefix="gpu_report_train_") as folder:
@@ -193,6 +193,7 @@ def training_worker(
         try:
             process.wait(timeout=seconds)
         except subprocess.TimeoutExpired:
+            wait_for_first_row(run_dir / "metrics.csv", process)
             process.send_signal(signal.SIGINT)
             process.wait()
         wall = time.perf_counter() - start
@@ -226,6 +227,13 @@ def training_worker(
         "curve": curve,
         **peak_memory(),
     }
+
+
+def wait_for_first_row(metrics: Path, process: subprocess.Popen) -> None:
+    """Return once ``metrics`` (a run's metrics.csv) holds a whole row after its header, or ``process`` has
+    ended: a run is then training (its stop handlers in place), however long its start took."""
+    while process.poll() is None and not (metrics.is_file() and metrics.read_text().count("\n") >= 2):
+        time.sleep(0.2)
 
 
 class Budget:
