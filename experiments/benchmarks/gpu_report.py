@@ -179,9 +179,9 @@ def training_worker(
     set_name: str, preset: str, seeds: int, seconds: float, flags: list[str]
 ) -> dict[str, Any]:
     """Train ``preset`` on ``set_name`` for ``seconds`` of wall clock, and at least until its first metrics
-    row (then SIGINT: the run checkpoints and exits), and read its metrics: per row, the wall seconds since the command started (the rows' own
-    steps per second, the start-up before the first row included), steps per seed and the mean return
-    over seeds of the training episodes."""
+    row (then SIGINT: the run checkpoints and exits), and read its metrics: per row, the wall seconds
+    since the command started (the rows' own steps per second, the start-up before the first row
+    included), steps per seed and the mean return over seeds of the training episodes."""
     with tempfile.TemporaryDirectory(prefix="gpu_report_train_") as folder:
         run_dir = Path(folder) / "run"
         command = [

@@ -52,8 +52,6 @@ class Experiment:
     learner: Learner
     placement: Placement
     """The device mesh of the run's arrays (:mod:`swat_jax.td3.sharding`)."""
-    replay_rows: int
-    """Rows of each task's replay ring (:meth:`TrainConfig.replay_rows`)."""
 
     @classmethod
     def build(cls, config: TrainConfig, devices: Sequence[jax.Device] | None = None) -> Experiment:
@@ -88,8 +86,12 @@ class Experiment:
             if config.limb_buckets > 1 and not layout.tasks_split
             else ()
         )
-        learner = Learner(actor, critic, config.td3, buckets)
-        return cls(config, tasks, env, learner, layout, config.replay_rows(env.num_bodies))
+        return cls(config, tasks, env, Learner(actor, critic, config.td3, buckets), layout)
+
+    @property
+    def replay_rows(self) -> int:
+        """Rows of each task's replay ring (:meth:`TrainConfig.replay_rows`)."""
+        return self.config.replay_rows(self.env.num_bodies)
 
     def init_state(self) -> TrainState:
         """Fresh networks, empty replay buffers and reset environments for every seed of the run, stacked on
