@@ -260,6 +260,7 @@ def train(
         sizes = ", ".join(f"{len(bucket.tasks)} x {bucket.limbs}" for bucket in experiment.learner.buckets)
         print(f"updates in {len(experiment.learner.buckets)} limb buckets (bodies x limbs): {sizes}")
     print(experiment.placement.describe())
+    flag, flag_rows = _replay_rows_flag(config, env.num_bodies)
     print(
         check_buffer_fits(
             env.num_bodies,
@@ -268,8 +269,9 @@ def train(
             env.observation_features,
             free_memory_bytes(),
             seeds=config.seeds,
-            flag="--iteration.capacity",
-            why=_replay_rows_why(config, experiment.replay_rows),
+            flag=flag,
+            flag_rows=flag_rows,
+            why=_replay_rows_why(config, experiment.replay_rows, env.num_bodies),
         )
     )
     run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
@@ -296,14 +298,25 @@ def train(
         checkpoints.close()
 
 
-def _replay_rows_why(config: TrainConfig, rows: int) -> str:
+def _replay_rows_flag(config: TrainConfig, num_bodies: int) -> tuple[str, int]:
+    """The flag that sets the replay rings' capacity on ``num_bodies`` bodies, and the rows of all of them
+    that one of its units sets per row of each (:func:`~swat_jax.td3.replay.check_buffer_fits`)."""
+    if config.iteration.rows_per_task(num_bodies) < config.iteration.capacity:
+        return "--iteration.capacity-all", num_bodies
+    return "--iteration.capacity", 1
+
+
+def _replay_rows_why(config: TrainConfig, rows: int, num_bodies: int) -> str:
     """Why each replay ring has ``rows`` rows, for the start-up line."""
-    if rows < config.iteration.capacity:
-        return (
-            f": what {config.steps:,} steps store, rounded up to a power of two, below --iteration.capacity "
-            f"{config.iteration.capacity:,}"
-        )
-    return ": --iteration.capacity"
+    capacity = config.iteration.rows_per_task(num_bodies)
+    limit = (
+        f"--iteration.capacity {capacity:,}"
+        if _replay_rows_flag(config, num_bodies)[0] == "--iteration.capacity"
+        else f"--iteration.capacity-all {config.iteration.capacity_all:,} over {num_bodies} bodies, {capacity:,} each"
+    )
+    if rows < capacity:
+        return f": what {config.steps:,} steps store, rounded up to a power of two, below {limit}"
+    return f": {limit}"
 
 
 def _loop(

@@ -147,8 +147,10 @@ def lock_step_episodes(lengths: list[list[list[int]]], steps: int) -> dict[str, 
         age += 1
         lengths_now = np.array([[lengths[r][k][episode[r, k]] for k in range(bodies)] for r in range(runs)])
         finished = age == lengths_now
-        restart, round_ended, counted, logged = lock_step_round(round_ended, jnp.asarray(finished)[..., None])
+        step = lock_step_round(round_ended, jnp.asarray(finished)[..., None])
+        restart, round_ended, counted, logged = step.restart, step.round_ended, step.counted, step.logged
         restart = np.asarray(restart)[..., 0]
+        np.testing.assert_array_equal(step.round_over, restart.all(-1))
         episode += restart
         age[restart] = 0
         for name, value in (

@@ -50,7 +50,7 @@ def single_seed_run():
     sizes = []
     for _ in range(3):  # past the random steps and the first updates, actor steps included
         state, metrics = step(state)
-        sizes.append(int(state.buffer.size))
+        sizes.append(int(state.buffer.size[0]))
     return traces, sizes, first_actor, state, metrics
 
 
@@ -145,7 +145,7 @@ def test_the_axes_declared_with_the_fields_are_the_arrays_axes():
     seeds = declared(state, axes.seed_axes(state))
     assert all(leaf.shape[0] == 4 for leaf, axis in seeds if axis == 0)
     shared = [leaf for leaf, axis in seeds if axis is None]
-    assert len(shared) == 4 and all(leaf.shape == () for leaf in shared), "counters, write position and size"
+    assert len(shared) == 2 and all(leaf.shape == () for leaf in shared), "the step counters"
     for tasks, copies, size, at_least in ((True, False, 2, 6), (False, True, 3, 20)):
         split = [
             (leaf, axis)

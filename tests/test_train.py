@@ -39,7 +39,7 @@ from swat_jax.runs.config import (
 )
 from swat_jax.runs.experiment import Experiment
 from swat_jax.runs.metrics import read_metrics
-from swat_jax.runs.trained import load_policy
+from swat_jax.runs.trained import load_policy, network_items
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.train import RunExistsError, TrainCommand, main, parse_command, resolve, train
 
@@ -153,7 +153,7 @@ def test_the_replay_holds_what_the_run_stores_and_grows_when_a_resume_raises_the
     assert final_state(tmp_path / "grown")[0].buffer.data.reward.shape == (2, 1, 128)
     train(dataclasses.replace(config, steps=600), resume=True, progress=False)
     assert (
-        "1 tasks x 1,000 transitions x 3 limbs x 19 features: --iteration.capacity)"
+        "1 tasks x 1,000 transitions x 3 limbs x 19 features: --iteration.capacity 1,000)"
         in capsys.readouterr().out
     )
     grown, uninterrupted = flatten(final_state(tmp_path / "grown")[0]), flatten(final_state(trained_run)[0])
@@ -188,6 +188,32 @@ def copy_run(trained_run: Path, tmp_path: Path) -> Path:
     config = load_config(run_dir / "config.json")
     (run_dir / "config.json").write_text(dataclasses.replace(config, run_dir=str(run_dir)).to_json())
     return run_dir
+
+
+def test_a_checkpoint_with_one_replay_position_for_all_seeds_resumes_with_a_copy_per_seed(
+    trained_run, tmp_path
+):
+    """Checkpoints written before each seed had its own replay write position (every seed wrote its
+    replay at one position, []) are read with that position given to every seed."""
+    run_dir = copy_run(trained_run, tmp_path)
+    state, info = final_state(run_dir)
+    shared = state.buffer.replace(position=state.buffer.position[0], size=state.buffer.size[0])
+    shutil.rmtree(run_dir / "checkpoints")
+    checkpoints = Checkpoints(run_dir)
+    try:
+        checkpoints.save(state.replace(buffer=shared), network_items(state.learner), info)
+    finally:
+        checkpoints.close()
+    restored, _ = final_state(run_dir)
+    assert restored.buffer.position.tolist() == [int(shared.position)] * 2
+    assert restored.buffer.size.tolist() == [int(shared.size)] * 2
+    expected = flatten(state)
+    for key, value in flatten(
+        restored.replace(
+            buffer=restored.buffer.replace(position=state.buffer.position, size=state.buffer.size)
+        )
+    ).items():
+        np.testing.assert_array_equal(value, expected[key], err_msg=key)
 
 
 def test_mismatched_checkpoint_names_the_arrays(trained_run, tmp_path):
@@ -446,7 +472,16 @@ def test_the_intended_preset_is_the_paper_preset_with_every_quirk_fixed():
     original = {"torso_relative_x": False, "stale_kinematics": True, "reference_inorder": True}
     assert quirks(paper) == original
     assert quirks(intended) == quirks(fast) == {name: not value for name, value in original.items()}
-    assert dataclasses.replace(intended, preset="paper", envs=paper.envs, network=paper.network) == paper
+    loop = dataclasses.replace(
+        paper.iteration, round_updates=False, reset_next_state=False, capacity_all=None
+    )
+    assert intended.iteration == loop, "swat_jax's training loop where the original's has quirks"
+    assert (
+        dataclasses.replace(
+            intended, preset="paper", envs=paper.envs, network=paper.network, iteration=paper.iteration
+        )
+        == paper
+    )
     assert fixed(paper) == dataclasses.replace(intended, preset="paper")
 
 
@@ -543,11 +578,18 @@ def test_make_train_passes_options_through():
 
 
 def test_replay_too_large_stops_before_anything_is_written(hopper_folder, tmp_path):
-    huge = IterationConfig(chunk=50, updates=20, random_steps=100, capacity=10**12, rounds=False)
-    config = tiny_train_config(tmp_path / "huge", hopper_folder, iteration=huge, steps=10**12)
-    with pytest.raises(MemoryError, match=r"lower --iteration\.capacity to at most"):
-        train(config, progress=False)
-    assert not (tmp_path / "huge").exists()
+    """Too large per body, or (the original's cap on all bodies, the paper preset's) in all: the flag to lower."""
+    huge = IterationConfig(
+        chunk=50, updates=20, random_steps=100, capacity=10**12, capacity_all=None, rounds=False
+    )
+    for iteration, flag in (
+        (huge, "capacity"),
+        (dataclasses.replace(huge, capacity_all=10**11), "capacity-all"),
+    ):
+        config = tiny_train_config(tmp_path / "huge", hopper_folder, iteration=iteration, steps=10**12)
+        with pytest.raises(MemoryError, match=rf"lower --iteration\.{flag} to at most"):
+            train(config, progress=False)
+        assert not (tmp_path / "huge").exists()
 
 
 def test_a_folder_environment_is_stored_absolute(hopper_folder, monkeypatch):
@@ -578,7 +620,7 @@ def test_init_from_starts_every_seed_from_the_chosen_seed_of_another_run(
         for a, b in zip(jax.tree_util.tree_leaves(ours), jax.tree_util.tree_leaves(theirs), strict=True):
             for seed in range(config.seeds):
                 np.testing.assert_array_equal(a[seed], b[1], err_msg=name)
-    assert int(state.buffer.size) == 0 and int(state.learner.critic_steps) == 0
+    assert not np.any(state.buffer.size) and int(state.learner.critic_steps) == 0
     adam = state.learner.actor_optimizer[1][0]
     assert not any(np.any(leaf) for leaf in jax.tree_util.tree_leaves(adam.mu)), "a fresh optimizer"
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -101,6 +101,8 @@ class StepResult:
     counted: jax.Array
     """bool: the step counts toward the budget (every step; with lock-step rounds, only while the copy's
     first episode of the round goes on after it)."""
+    round_over: jax.Array
+    """[] bool: with lock-step rounds, this step ended the round (every copy restarts); False without."""
 
 
 class MultiTaskEnv:
@@ -228,10 +230,16 @@ class MultiTaskEnv:
         axis = len(seeds)
         finished = jnp.stack([body.done for body in stepped], axis)
         if self.lock_step:
-            restart, round_ended, counted, logged = lock_step_round(state.round_ended, finished)
+            bookkeeping = lock_step_round(state.round_ended, finished)
         else:
-            restart, round_ended, counted = finished, state.round_ended, jnp.ones_like(finished)
-            logged = finished
+            bookkeeping = RoundStep(
+                restart=finished,
+                round_ended=state.round_ended,
+                counted=jnp.ones_like(finished),
+                logged=finished,
+                round_over=jnp.zeros(seeds, bool),
+            )
+        restart, round_ended, logged = bookkeeping.restart, bookkeeping.round_ended, bookkeeping.logged
         continued = tuple(
             _unfolded(
                 _where_done(_folded(restart[..., k, :], seeds, self.copies), fresh, after_step),
@@ -245,7 +253,8 @@ class MultiTaskEnv:
             reward=jnp.stack([body.reward for body in stepped], axis),
             terminated=jnp.stack([body.terminated for body in stepped], axis),
             truncated=jnp.stack([body.truncated for body in stepped], axis),
-            counted=counted,
+            counted=bookkeeping.counted,
+            round_over=bookkeeping.round_over,
         )
 
         def logged_sum(values: list[jax.Array]) -> jax.Array:
@@ -264,6 +273,34 @@ class MultiTaskEnv:
             round_ended=round_ended,
         )
         return next_state, result
+
+    @property
+    def longest_episode(self) -> int:
+        """The longest time limit of the bodies: the most steps a copy's episode, and a lock-step round, lasts."""
+        return max(env.morphology.family.max_episode_steps for env in self.envs)
+
+    def where_seeds(self, advance: jax.Array, new: MultiTaskState, old: MultiTaskState) -> MultiTaskState:
+        """Per seed, ``new`` where ``advance`` [S] else ``old`` (a seed that waits keeps its state)."""
+        seeds = new.seeds
+        per_copy = _folded(jnp.broadcast_to(advance[..., None], (*seeds, self.copies)), seeds, self.copies)
+        bodies = tuple(
+            _unfolded(
+                _where_done(
+                    per_copy, _folded(stepped, seeds, self.copies), _folded(kept, seeds, self.copies)
+                ),
+                seeds,
+                self.copies,
+            )
+            for stepped, kept in zip(new.bodies, old.bodies, strict=True)
+        )
+
+        def chosen(stepped: jax.Array, kept: jax.Array) -> jax.Array:
+            return jnp.where(
+                advance.reshape(advance.shape + (1,) * (stepped.ndim - advance.ndim)), stepped, kept
+            )
+
+        others = jax.tree_util.tree_map(chosen, new.replace(bodies=()), old.replace(bodies=()))
+        return others.replace(bodies=bodies)
 
     def _split(self, rng: jax.Array, seeds: tuple[int, ...]) -> tuple[jax.Array, ...]:
         """K + 1 keys [*S] from each seed's key: the seed's next key, then one per body."""
@@ -287,25 +324,38 @@ class MultiTaskEnv:
         )
 
 
-def lock_step_round(
-    round_ended: jax.Array, finished: jax.Array
-) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+class RoundStep(NamedTuple):
+    """One step's lock-step bookkeeping (:func:`lock_step_round`): [*S, K, n] bool unless stated."""
+
+    restart: jax.Array
+    """The copies that start a new episode: the finished ones, and every copy of a seed whose round this
+    step ended (all its copies have ended their first episode)."""
+    round_ended: jax.Array
+    """The copies whose first episode of the (next) round has ended."""
+    counted: jax.Array
+    """The steps that count: the copy's first episode of the round goes on after this step."""
+    logged: jax.Array
+    """The copies whose first episode of the round this step ended (the episodes the original logs)."""
+    round_over: jax.Array
+    """[*S] bool: this step ended the seed's round."""
+
+
+def lock_step_round(round_ended: jax.Array, finished: jax.Array) -> RoundStep:
     """One step of the original code's lock-step rounds (its training loop's ``done_list`` bookkeeping).
 
     Args:
         round_ended: [*S, K, n] bool, copies whose first episode of the round ended before this step.
         finished: [*S, K, n] bool, copies whose episode this step ended (terminated or truncated).
-
-    Returns:
-        ``(restart, round_ended, counted, logged)``, each [*S, K, n] bool: the copies that start a new
-        episode (the finished ones, and every copy of a seed whose round this step ended: all its copies
-        have ended their first episode), the copies whose first episode of the (next) round has ended, the
-        steps that count (the copy's first episode of the round goes on after this step), and the copies
-        whose first episode of the round this step ended (the episodes the original logs).
     """
     ended = round_ended | finished
     round_over = jnp.all(ended, axis=(-2, -1), keepdims=True)
-    return finished | round_over, ended & ~round_over, ~ended, finished & ~round_ended
+    return RoundStep(
+        restart=finished | round_over,
+        round_ended=ended & ~round_over,
+        counted=~ended,
+        logged=finished & ~round_ended,
+        round_over=round_over[..., 0, 0],
+    )
 
 
 def _per_seed(function: Callable, seeds: tuple[int, ...]) -> Callable:

@@ -8,11 +8,12 @@ TrainConfig's defaults:
 
 - ``paper``: the paper's and the reference code's: one environment copy per task, the reference code's
   lock-step rounds (:attr:`~swat_jax.td3.iteration.IterationConfig.rounds`) and the ``original`` update
-  schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): after each chunk of 100 steps per
-  task, task after task takes (counted steps summed over tasks) / tasks updates on batches of 100 from
-  its own replay, one Adam step per counted environment step.
+  schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): when a round ends, task after
+  task takes (counted steps of the round summed over tasks) / tasks updates on batches of 100 from its own
+  replay, one Adam step per counted environment step, and the next round is collected by the policy they
+  left (:attr:`~swat_jax.td3.iteration.IterationConfig.round_updates`).
 - ``intended``: the ``paper`` preset with every quirk of the original code fixed (:func:`fixed`): the
-  paper's intended method on the original's schedule.
+  paper's intended method on the original's schedule, updated after every chunk.
 - ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
   from every task), with a larger batch and fewer updates per environment step, for wall clock.
 
@@ -178,7 +179,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = host_only("paper")
-    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds and 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (paper with the quirks fixed, 4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (paper with the quirks fixed, 4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
     seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -277,6 +278,14 @@ class TrainConfig:
                 f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
                 f"(--envs.copies {self.envs.copies})"
             )
+        if self.iteration.capacity_all is not None:
+            bodies = len(self.training_bodies())
+            if self.iteration.rows_per_task(bodies) < self.envs.copies:
+                raise ConfigError(
+                    f"--iteration.capacity-all ({self.iteration.capacity_all}) over {bodies} bodies must hold at "
+                    f"least one step of every copy (--envs.copies {self.envs.copies}); raise it, or give "
+                    "--iteration.capacity-all None"
+                )
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
         if self.td3.atoms and (self.td3.atoms < 2 or self.algo == "smp"):
@@ -336,24 +345,30 @@ class TrainConfig:
 
     def replay_rows(self, num_bodies: int) -> int:
         """Rows of each task's replay ring: the transitions the run stores per task (every copy's steps of
-        every iteration) rounded up to a power of two, or ``iteration.capacity`` when that is smaller.
+        every iteration) rounded up to a power of two, or the capacity of its rings
+        (:meth:`~swat_jax.td3.iteration.IterationConfig.rows_per_task`) when that is smaller.
 
         A ring that the run cannot overfill holds what the full-size one would: it is never overwritten, so
         it samples the same rows. The rounding lets budgets within a factor of two of each other share one
         compiled program (the ring's size is one of its shapes), for at most twice the rows filled."""
         stored = self.iterations(num_bodies) * self.iteration.chunk * self.envs.copies
-        return min(self.iteration.capacity, 1 << (stored - 1).bit_length())
+        return min(self.iteration.rows_per_task(num_bodies), 1 << (stored - 1).bit_length())
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
 
 
 def fixed(config: TrainConfig) -> TrainConfig:
-    """``config`` with every quirk of the original code fixed: what the paper intends (docs/fidelity.md)."""
+    """``config`` with every quirk of the original code fixed: what the paper intends (docs/fidelity.md).
+    Its training loop's quirks too: updates after every chunk instead of at the rounds' ends, time-limit
+    transitions bootstrapped from the state they reached, replay rows per body whatever the set's size."""
     return dataclasses.replace(
         config,
         envs=dataclasses.replace(config.envs, torso_relative_x=True, stale_kinematics=False),
         network=dataclasses.replace(config.network, reference_inorder=False),
+        iteration=dataclasses.replace(
+            config.iteration, round_updates=False, reset_next_state=False, capacity_all=None
+        ),
     )
 
 
@@ -368,7 +383,7 @@ PRESETS: dict[str, TrainConfig] = {
         envs=dataclasses.replace(fixed(PAPER).envs, copies=4),
         network=dataclasses.replace(fixed(PAPER).network, initialisation="flax"),
         iteration=dataclasses.replace(
-            PAPER.iteration, chunk=16, updates=256, schedule="all_tasks", rounds=False
+            fixed(PAPER).iteration, chunk=16, updates=256, schedule="all_tasks", rounds=False
         ),
         td3=dataclasses.replace(PAPER.td3, batch_size=25),
     ),
@@ -424,7 +439,7 @@ def load_config(path: str | Path) -> TrainConfig:
         raise ConfigError(f"{path}: no such file; is this a swat_jax run directory?") from error
     except (OSError, json.JSONDecodeError) as error:
         raise ConfigError(f"{path}: not readable JSON ({error}); restore it or start a new run") from error
-    return _build(TrainConfig, _regrouped(fields), path)
+    return _build(TrainConfig, _with_earlier_switches(_regrouped(fields)), path)
 
 
 REGROUPED = {
@@ -444,6 +459,23 @@ def _regrouped(fields: Any) -> Any:
     for name, group in REGROUPED.items():
         if name in fields and isinstance(fields.get(group, {}), dict):
             fields[group] = {**fields.get(group, {}), name: fields.pop(name)}
+    return fields
+
+
+EARLIER_SWITCHES = {"iteration": {"round_updates": False, "reset_next_state": False, "capacity_all": None}}
+"""Switches added with the original's training loop (December 2026), whose defaults changed what the paper
+preset computes, with the value that gives what a run computed before them."""
+
+
+def _with_earlier_switches(fields: Any) -> Any:
+    """``fields`` of a config.json with the switches of :data:`EARLIER_SWITCHES` it lacks set to their earlier
+    value, so a run written before them resumes with the computation (and the checkpoints) it had."""
+    if not isinstance(fields, dict):
+        return fields
+    fields = dict(fields)
+    for group, switches in EARLIER_SWITCHES.items():
+        if isinstance(fields.get(group, {}), dict):
+            fields[group] = {**switches, **fields.get(group, {})}
     return fields
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
@@ -39,6 +40,9 @@ RING_AXIS = 2
 """The ring axis of the replay arrays of a TrainState: [seeds, tasks, rows, ...]."""
 REPLAY_ROWS_KEY = ".buffer.data.reward"
 """The checkpointed array whose shape gives the replay rings' rows."""
+REPLAY_POSITION_KEY = ".buffer.position"
+"""The checkpointed write position: [S], one per seed, or [] in checkpoints written before the seeds had
+their own (December 2026)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,7 +150,24 @@ class Experiment:
             shapes = shapes.replace(
                 buffer=jax.eval_shape(lambda b: resized(b, rows, 0, RING_AXIS), shapes.buffer)
             )
-        state, info = checkpoints.restore(shapes, self.placement.state_shardings(shapes))
+        shardings = self.placement.state_shardings(shapes)
+        shared = checkpoints.saved_shape(REPLAY_POSITION_KEY, shapes) == ()
+        if shared:
+            # Written when every seed wrote its replay at one position: read it as one, give each seed a copy.
+            one, replicated = jax.ShapeDtypeStruct((), np.int32), self.placement.replicated()
+            shapes = shapes.replace(buffer=shapes.buffer.replace(position=one, size=one))
+            shardings = shardings.replace(
+                buffer=shardings.buffer.replace(position=replicated, size=replicated)
+            )
+        state, info = checkpoints.restore(shapes, shardings)
+        if shared:
+            seeds = (self.config.seeds,)
+            state = state.replace(
+                buffer=state.buffer.replace(
+                    position=jnp.broadcast_to(state.buffer.position, seeds),
+                    size=jnp.broadcast_to(state.buffer.size, seeds),
+                )
+            )
         if rows != self.replay_rows:
             stored = int(state.steps_per_task)
             if stored > min(rows, self.replay_rows):

@@ -12,6 +12,11 @@ follows the paper: uniform random actions for each task's first ``random_steps``
 plus Gaussian noise (std ``exploration_noise``, or one per copy: :func:`exploration_scales`), clipped to
 [-1, 1]. Updates start once every task's buffer holds a full batch.
 
+With the original's lock-step rounds and their updates (:attr:`IterationConfig.round_updates`, the paper
+preset), a seed updates only when its round ends, after the chunk in which it ended; from that step to the
+chunk's end it waits (its environments keep their state, it stores and counts nothing), so the policy that
+collects a round is the one the previous round's updates left, as in the original's training loop.
+
 Seeds are one more batch axis, always present: the state leads with a seed axis [S] (S >= 1; which
 fields have it is declared with them, :mod:`swat_jax.axes`), so S independent runs are one compiled
 program.
@@ -46,10 +51,14 @@ class TrainState:
     rng: jax.Array
     """[S] keys."""
     steps_per_task: jax.Array = axes.field(seeded=False)
-    """[] int32 environment steps taken in each task, summed over its copies (copies x chunk per iteration)."""
+    """[] int32 environment steps taken in each task, summed over its copies (copies x chunk per iteration;
+    with round updates, the steps a seed waited included)."""
     counted: jax.Array
     """[S] int32 environment steps counted so far, summed over tasks and copies: every step, or with
     lock-step rounds (:attr:`IterationConfig.rounds`) only the steps the original code counts."""
+    round_start: jax.Array | None = None
+    """[S] int32 the counted steps when each seed's current round began, with
+    :attr:`IterationConfig.round_updates` (None without)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,8 +79,20 @@ class IterationConfig:
     """Std of the Gaussian noise added to the policy's actions (of the first copy, with exploration_noise_max)."""
     exploration_noise_max: float | None = None
     """With it, each copy of a body explores with its own noise std, spread evenly from exploration_noise (the first copy) to this (the last), so one run explores both near its policy and far from it (FastTD3's noise drawn per environment, Seo et al. 2025); None: every copy exploration_noise."""
+    round_updates: bool = True
+    """With rounds (ignored without), the original's training loop: a seed's updates run when its round ends (each body (counted steps of the round summed over bodies) / bodies of them, without waiting for a full batch), so the policy acting in a round is the one its previous round trained; a seed whose round ends inside a chunk waits, storing nothing, for the chunk's end. False: the updates run after every chunk (the counted steps' remainder carried to the next), as swat_jax's presets before the original's rounds were reproduced."""
+    reset_next_state: bool = True
+    """Store a transition that hits the time limit with the observation of the episode that starts next as its next state, bootstrapped from it, as the original does (its vectorised environment has already reset the copy); False: the observation the step reached."""
     capacity: int = 500_000
     """Replay rows per task (the paper: 500K); a run whose --steps store fewer per task gets rings of those rows rounded up to a power of two, which hold what the full ones would."""
+    capacity_all: int | None = 4_000_000
+    """Replay rows summed over tasks at most (the original's rb_max): a set of more tasks than capacity_all / capacity gets capacity_all / K rows per task (Cheetah++: 333,333); None: capacity rows per task whatever K."""
+
+    def rows_per_task(self, num_tasks: int) -> int:
+        """The replay rows of each of ``num_tasks`` tasks' rings (:attr:`capacity`, :attr:`capacity_all`)."""
+        if self.capacity_all is not None and num_tasks * self.capacity > self.capacity_all:
+            return self.capacity_all // num_tasks
+        return self.capacity
 
 
 def exploration_scales(config: IterationConfig, copies: int) -> jax.Array:
@@ -97,7 +118,13 @@ def init_train_state(
         rng=rng,
         steps_per_task=jnp.zeros((), jnp.int32),
         counted=jnp.zeros(rngs.shape[:1], jnp.int32),
+        round_start=jnp.zeros(rngs.shape[:1], jnp.int32) if waits_for_rounds(config) else None,
     )
+
+
+def waits_for_rounds(config: IterationConfig) -> bool:
+    """Whether a seed's updates wait for the end of its lock-step round (:attr:`IterationConfig.round_updates`)."""
+    return config.rounds and config.round_updates
 
 
 def seed_keys(first_seed: int, seeds: int) -> jax.Array:
@@ -131,6 +158,9 @@ def make_train_iteration(
     structure = jax.tree.map(jnp.asarray, structure)
     num_tasks = structure.limb_mask.shape[0]
     explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
+    waits = waits_for_rounds(config)
+    # Update slots of each task's run: a chunk's counted steps, or with round_updates a whole round's.
+    slots = (env.longest_episode if waits else config.chunk) * env.copies if config.rounds else config.updates
 
     def random_phase(state: TrainState) -> jax.Array:
         """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
@@ -144,53 +174,92 @@ def make_train_iteration(
         over_seeds = axes.over_seeds(seeds)
         split = over_seeds(lambda key: tuple(jax.random.split(key)))
         buffer_axes = axes.seed_axes(state.buffer)
-        inserted = over_seeds(insert, in_axes=(buffer_axes, 0), out_axes=buffer_axes)
+        inserted = over_seeds(insert, in_axes=(buffer_axes, 0, 0 if waits else None), out_axes=buffer_axes)
         explored = over_seeds(explore, in_axes=(0, 0, 0 if config.rounds else None, 0))
-        slots = config.chunk * env.copies if config.rounds else config.updates
-        update_phase = make_update_phase(structure, learner, config.schedule, slots, seeds, config.rounds)
+        update_phase = make_update_phase(
+            structure, learner, config.schedule, slots, seeds, config.rounds, wait_for_batch=not waits
+        )
         learner_axes = axes.seed_axes(state.learner)
         observed = over_seeds(
-            lambda learner_state, observations: learner.observe(
-                learner_state, observations, structure.limb_mask[:, None, :]
-            ),
-            in_axes=(learner_axes, 0),
+            lambda learner_state, observations, mask: learner.observe(learner_state, observations, mask),
+            in_axes=(learner_axes, 0, 0),
             out_axes=learner_axes,
         )
 
-        def collect(state: TrainState, _) -> tuple[TrainState, tuple[jax.Array, jax.Array | None]]:
-            """One step of every copy of every task and seed, stored in the replay; its rewards and, for
-            networks that normalise observations, the observations it acted on."""
+        def collect(
+            carry: tuple[TrainState, jax.Array], _
+        ) -> tuple[tuple[TrainState, jax.Array], tuple[jax.Array, jax.Array | None, jax.Array]]:
+            """One step of every copy of every task and seed, stored in the replay; its rewards, for networks
+            that normalise observations the observations it acted on, and which seeds stepped. A seed that
+            waits for its round's updates (``waiting`` [S]) keeps its environment and stores nothing."""
+            state, waiting = carry
+            stepping = ~waiting
             rng, act_key = split(state.rng)
             action = explored(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
             env_state, result = env.step(state.env, action)
+            next_observation = result.next_observation
+            if config.reset_next_state:
+                # The copies that hit the time limit have restarted: env_state holds their new episode's.
+                truncated = result.truncated[..., None, None]
+                next_observation = jnp.where(truncated, env_state.observation, next_observation)
             transitions = Transitions(
                 observation=state.env.observation,
                 action=action,
                 reward=result.reward,
-                next_observation=result.next_observation,
+                next_observation=next_observation,
                 terminated=result.terminated,
             )
+            counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
+            if waits:
+                env_state = env.where_seeds(stepping, env_state, state.env)
+                counted = jnp.where(stepping, counted, 0)
+                waiting = waiting | result.round_over
             next_state = state.replace(
-                buffer=inserted(state.buffer, transitions),
+                buffer=inserted(state.buffer, transitions, stepping if waits else None),
                 env=env_state,
                 rng=rng,
                 steps_per_task=state.steps_per_task + env.copies,
-                counted=state.counted + jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32),
+                counted=state.counted + counted,
             )
             observed_now = state.env.observation if learner.normalises_observations else None
-            return next_state, (result.reward, observed_now)
+            reward = jnp.where(stepping[:, None, None], result.reward, 0.0)
+            return (next_state, waiting), (reward, observed_now, stepping)
+
+        def collect_or_wait(
+            carry: tuple[TrainState, jax.Array], _
+        ) -> tuple[tuple[TrainState, jax.Array], tuple[jax.Array, jax.Array | None, jax.Array]]:
+            """:func:`collect`, or no step at all once every seed waits (the rest of the chunk takes no physics)."""
+
+            def wait(carry: tuple[TrainState, jax.Array]):
+                state, waiting = carry
+                observed_now = state.env.observation if learner.normalises_observations else None
+                reward = jnp.zeros(state.env.round_ended.shape, jnp.float32)
+                waited = state.replace(steps_per_task=state.steps_per_task + env.copies)
+                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool))
+
+            return jax.lax.cond(jnp.all(carry[1]), wait, lambda carry: collect(carry, None), carry)
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
         counted_before = state.counted
-        state, (rewards, observations) = jax.lax.scan(collect, state, None, length=config.chunk)
+        (state, round_over), (rewards, observations, stepped) = jax.lax.scan(
+            collect_or_wait if waits else collect, (state, jnp.zeros(seeds, bool)), None, length=config.chunk
+        )
         rng, update_key = split(state.rng)
         learner_state = state.learner
         if learner.normalises_observations:
-            # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F].
-            learner_state = observed(learner_state, jnp.moveaxis(observations, 0, 1))
-        if config.rounds:
-            # The original's per_morph_iter: each task takes (counted steps summed over tasks) // tasks
-            # updates; counting from the run's start carries the remainder to the next iteration.
+            # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F]; the
+            # steps a seed waited hold no new observation.
+            mask = structure.limb_mask[None, None, :, None, :] & stepped[:, :, None, None, None]
+            learner_state = observed(
+                learner_state, jnp.moveaxis(observations, 0, 1), jnp.moveaxis(mask, 0, 1)
+            )
+        if waits:
+            counts, round_start = round_update_counts(state.counted, state.round_start, round_over, num_tasks)
+            state = state.replace(round_start=round_start)
+            learner_state, metrics = update_phase(learner_state, state.buffer, update_key, counts)
+        elif config.rounds:
+            # Each task takes (counted steps summed over tasks) // tasks updates; counting from the run's
+            # start carries the remainder to the next iteration.
             counts = state.counted // num_tasks - counted_before // num_tasks
             learner_state, metrics = update_phase(learner_state, state.buffer, update_key, counts)
         else:
@@ -204,6 +273,25 @@ def make_train_iteration(
         return state.replace(learner=learner_state, rng=rng), metrics
 
     return iteration
+
+
+def round_update_counts(
+    counted: jax.Array, round_start: jax.Array, round_over: jax.Array, num_tasks: int
+) -> tuple[jax.Array, jax.Array]:
+    """The original's ``per_morph_iter`` (``TD3.py:206``): when a seed's round is over, each of its tasks takes
+    (the round's counted steps summed over tasks) // tasks updates.
+
+    Args:
+        counted: [S] steps counted since the run's start.
+        round_start: [S] ``counted`` when each seed's round began.
+        round_over: [S] bool, the seeds whose round ended.
+
+    Returns:
+        ``(counts, round_start)``: [S] updates per task (0 where the round goes on), and where each seed's
+        next round begins.
+    """
+    counts = jnp.where(round_over, (counted - round_start) // num_tasks, 0)
+    return counts, jnp.where(round_over, counted, round_start)
 
 
 def make_exploration(

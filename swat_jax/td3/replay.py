@@ -1,7 +1,8 @@
 """One replay buffer per task, on the device: fixed-shape arrays plus pure ``insert`` and ``sample``.
 
 T tasks, C capacity per task, L limbs (padded), F features per limb. Every task receives the same number
-of transitions per insert (n copies per task), so one write position and one size serve all tasks.
+of transitions per insert (n copies per task), so one write position and one size serve all tasks (of
+a seed: each seed has its own, as one that waits for its round's updates stores nothing).
 Sizes are checked on the host before allocation (:func:`buffer_bytes`), never under jit.
 """
 
@@ -49,12 +50,12 @@ class Transitions:
 
 @struct.dataclass
 class ReplayBuffer:
-    """Transitions [T, C, ...] with a shared ring-buffer write position and fill level."""
+    """Transitions [T, C, ...] with the tasks' ring-buffer write position and fill level."""
 
     data: Transitions = axes.field(task=0)
-    position: jax.Array = axes.field(seeded=False)
+    position: jax.Array
     """[] int32 next row to write, in [0, C)."""
-    size: jax.Array = axes.field(seeded=False)
+    size: jax.Array
     """[] int32 rows filled, at most C."""
 
     @property
@@ -87,6 +88,7 @@ def check_buffer_fits(
     *,
     seeds: int = 1,
     flag: str = "--iteration.capacity",
+    flag_rows: int = 1,
     why: str = "",
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
@@ -95,6 +97,8 @@ def check_buffer_fits(
         free_bytes: memory available for the buffers' device (see :func:`free_memory_bytes`).
         seeds: independent runs, each with its own buffers.
         flag: the option that sets ``capacity``, named in the error.
+        flag_rows: the rows that one of ``flag``'s units sets per task's row: 1 for rows per task, ``tasks``
+            for a cap on the rows of all tasks together.
         why: why the buffers have ``capacity`` rows, appended to the report.
     """
     needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features)
@@ -108,7 +112,7 @@ def check_buffer_fits(
         fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features))
         raise MemoryError(
             f"{report} do not fit in {usable / GIB:.2f} GiB ({USABLE_FRACTION:.0%} of the "
-            f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting:,}"
+            f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting * flag_rows:,}"
         )
     return report
 
@@ -131,11 +135,12 @@ def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> Rep
 
 def resized(buffer: ReplayBuffer, rows: int, stored: int, ring_axis: int = 1) -> ReplayBuffer:
     """``buffer`` with rings of ``rows`` rows per task holding what a ring of that size would hold after the
-    same inserts: ``stored`` rows per task, written in order from row 0 and never overwritten.
+    same inserts: at most ``stored`` rows per task (its ``size``: per seed, with a seed axis), written in order
+    from row 0 and never overwritten.
 
     Args:
         buffer: its data's ring axis is ``ring_axis`` (1 for one seed's [T, C, ...], 2 with a seed axis in
-            front); its rows past ``stored`` are empty.
+            front); its rows past its size are empty.
         rows: the new ring size, at least ``stored``.
 
     Raises:
@@ -155,20 +160,30 @@ def resized(buffer: ReplayBuffer, rows: int, stored: int, ring_axis: int = 1) ->
 
     return ReplayBuffer(
         data=jax.tree_util.tree_map(fit, buffer.data),
-        position=jnp.asarray(stored % rows, jnp.int32),
-        size=jnp.asarray(stored, jnp.int32),
+        position=buffer.size % rows,
+        size=buffer.size,
     )
 
 
-def insert(buffer: ReplayBuffer, batch: Transitions) -> ReplayBuffer:
-    """Write ``batch`` [T, n, ...] at the write position, wrapping around; the oldest rows go first."""
+def insert(buffer: ReplayBuffer, batch: Transitions, write: jax.Array | None = None) -> ReplayBuffer:
+    """Write ``batch`` [T, n, ...] at the write position, wrapping around; the oldest rows go first. With
+    ``write`` [] bool, only where it is True (else the buffer is left as it was)."""
     copies = batch.reward.shape[1]
     rows = (buffer.position + jnp.arange(copies)) % buffer.capacity
-    data = jax.tree_util.tree_map(lambda stored, new: stored.at[:, rows].set(new), buffer.data, batch)
+    if write is None:
+        data = jax.tree_util.tree_map(lambda stored, new: stored.at[:, rows].set(new), buffer.data, batch)
+        written = copies
+    else:
+        data = jax.tree_util.tree_map(
+            lambda stored, new: stored.at[:, rows].set(jnp.where(write, new, stored[:, rows])),
+            buffer.data,
+            batch,
+        )
+        written = jnp.where(write, copies, 0)
     return ReplayBuffer(
         data=data,
-        position=(buffer.position + copies) % buffer.capacity,
-        size=jnp.minimum(buffer.size + copies, buffer.capacity),
+        position=(buffer.position + written) % buffer.capacity,
+        size=jnp.minimum(buffer.size + written, buffer.capacity),
     )
 
 

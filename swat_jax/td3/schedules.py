@@ -48,6 +48,9 @@ class UpdateStep:
     structure: StructureBatch
     """[K, ...] the tasks' structure, padded to the buffer's limb count."""
     seeds: int
+    wait_for_batch: bool = True
+    """Update only once the buffer holds a batch (False: from its first row, sampling with replacement, as
+    the original's rounds do)."""
 
     def delayed(self, it: jax.Array) -> jax.Array:
         """[] bool: update ``it`` of a task's run takes the actor and target step (the original's phase)."""
@@ -55,12 +58,13 @@ class UpdateStep:
 
     def all_tasks(self, state: LearnerState, buffer: ReplayBuffer, keys: jax.Array) -> Updated:
         """An update of every seed on a batch from every task's ring; keys [S, 2] -> losses [S]."""
+        filled = self._filled(buffer)
 
         def update(state: LearnerState, buffer: ReplayBuffer, key: jax.Array) -> Updated:
             sample_key, noise_key = jax.random.split(key)
             batch = sample(buffer, sample_key, self.learner.config.batch_size)
             return self._once_filled(
-                buffer, lambda s: self.learner.update(s, batch, self.structure, noise_key), state
+                filled, lambda s: self.learner.update(s, batch, self.structure, noise_key), state
             )
 
         return self._over_seeds(update, state, buffer)(state, buffer, keys)
@@ -78,6 +82,7 @@ class UpdateStep:
         where ``delayed`` [] bool; keys [S, 2] -> losses [S]. With ``active`` [S] bool, only the active seeds
         update (the others keep their learner, losses 0); the critic step counter counts the slot either way."""
         single = dataclasses.replace(self.learner, buckets=())  # one-task batches at the padded limb count
+        filled = self._filled(buffer)
 
         def update(
             state: LearnerState, buffer: ReplayBuffer, key: jax.Array, active: jax.Array | None = None
@@ -86,7 +91,7 @@ class UpdateStep:
             batch = _sample_task(buffer, task, sample_key, self.learner.config.batch_size)
             structure = jax.tree.map(lambda leaf: leaf[task][None], self.structure)
             updated, losses = self._once_filled(
-                buffer, lambda s: single.update(s, batch, structure, noise_key, delayed), state
+                filled, lambda s: single.update(s, batch, structure, noise_key, delayed), state
             )
             if active is None:
                 return updated, losses
@@ -99,14 +104,20 @@ class UpdateStep:
             return self._over_seeds(update, state, buffer)(state, buffer, keys)
         return self._over_seeds(update, state, buffer, 0)(state, buffer, keys, active)
 
+    def _filled(self, buffer: ReplayBuffer) -> jax.Array:
+        """[] bool, shared by the seeds: every seed's buffer [S] holds a batch (a row, without
+        :attr:`wait_for_batch`). One flag for all seeds keeps the update a branch, not a select under the
+        seeds' ``vmap``."""
+        least = self.learner.config.batch_size if self.wait_for_batch else 1
+        return jnp.min(buffer.size) >= least
+
+    @staticmethod
     def _once_filled(
-        self, buffer: ReplayBuffer, update: Callable[[LearnerState], Updated], state: LearnerState
+        filled: jax.Array, update: Callable[[LearnerState], Updated], state: LearnerState
     ) -> Updated:
-        """``update(state)`` once the buffer holds a batch, else the state unchanged with zero losses."""
+        """``update(state)`` where ``filled`` (:meth:`_filled`), else the state unchanged with zero losses."""
         skipped = {name: jnp.zeros(()) for name in LOSSES}
-        return jax.lax.cond(
-            buffer.size >= self.learner.config.batch_size, update, lambda s: (s, skipped), state
-        )
+        return jax.lax.cond(filled, update, lambda s: (s, skipped), state)
 
     def _over_seeds(
         self, update: Callable, state: LearnerState, buffer: ReplayBuffer, *more: int
@@ -172,6 +183,7 @@ def make_update_phase(
     updates: int,
     seeds: int,
     counted: bool = False,
+    wait_for_batch: bool = True,
 ) -> UpdatePhase:
     """The TD3 updates of one iteration of every seed, ``update_phase(learner_state, buffer, rng [S],
     counts=None)``, in the order of ``schedule``.
@@ -183,13 +195,14 @@ def make_update_phase(
         seeds: S, the size of the seed axis of the learner state, buffer and keys.
         counted: lock-step rounds (``original`` only): ``update_phase`` takes ``counts`` [S] int32, the
             updates of each of a seed's tasks (:func:`original_counted`).
+        wait_for_batch: :attr:`UpdateStep.wait_for_batch`.
 
     losses: ``critic_loss`` and ``actor_loss`` [S, K x updates] (task after task) or [S, updates], in the
     order the updates ran.
     """
     if counted and schedule != "original":
         raise ValueError("update counts (lock-step rounds) need the original schedule")
-    step = UpdateStep(learner, jax.tree.map(jnp.asarray, structure), seeds)
+    step = UpdateStep(learner, jax.tree.map(jnp.asarray, structure), seeds, wait_for_batch)
     shape = (structure.limb_mask.shape[0], updates) if schedule == "original" else (updates,)
     run = {"all_tasks": all_tasks, "original": original_counted if counted else original}[schedule]
 

@@ -63,6 +63,10 @@ class Placement:
         )
         return jax.tree.map(self._sharding, state, seeded, split, is_leaf=lambda x: x is None)
 
+    def replicated(self) -> NamedSharding:
+        """The sharding of an array every device holds whole."""
+        return NamedSharding(self.mesh, PartitionSpec())
+
     def seeded(self) -> NamedSharding:
         """The sharding of an array whose leading axis is the seed axis (metrics, evaluation results)."""
         return NamedSharding(self.mesh, PartitionSpec(SEEDS))
