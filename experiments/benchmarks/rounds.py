@@ -45,7 +45,9 @@ def random_replay(
         next_observation=jax.random.normal(keys[3], (seeds, *shape, features)),
         terminated=jnp.zeros((seeds, *shape[:2]), bool),
     )
-    return ReplayBuffer(data=data, position=jnp.zeros((), jnp.int32), size=jnp.full((), capacity, jnp.int32))
+    return ReplayBuffer(
+        data=data, position=jnp.zeros(seeds, jnp.int32), size=jnp.full(seeds, capacity, jnp.int32)
+    )
 
 
 @dataclasses.dataclass(frozen=True)
