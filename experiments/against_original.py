@@ -13,7 +13,9 @@ budget, the script trains
   ``--parallel`` of them at a time; its own ``stat.json`` (a row per lock-step round: the environment steps
   so far, summed over bodies, and the return of each body's first episode of the round) and the trainer's
   log are copied to ``OUT/original/<set>-seed<k>/``;
-- ``python -m swat_jax.train --preset paper`` with every seed in one program, in ``OUT/runs/<set>-swat_jax``.
+- ``python -m swat_jax.train --preset paper``, one process per seed as well, ``--parallel`` at a time, each
+  single-threaded and pinned to a core, in ``OUT/runs/<set>-swat_jax-seed<k>`` (its output beside it, in
+  ``<set>-swat_jax-seed<k>.log``).
 
 Both curves are binned on the same grid (a point every ``log_iterations`` collection chunks of 100 steps
 per body): swat_jax's point is the mean return of the training episodes that ended in the interval, the
@@ -27,7 +29,7 @@ the wall clock and throughput of each side).
 (compile, one warm-up iteration, ``--speed-iterations`` timed ones), and prints a Markdown table with each
 figure's ratio to the original on one thread, measured in the same sitting.
 
-A partial run resumes: a finished original seed (its ``stat.json`` copied) is kept, swat_jax's run resumes
+A partial run resumes: a finished original seed (its ``stat.json`` copied) is kept, a swat_jax seed resumes
 from its newest checkpoint. An original seed that stopped part-way is run again from its start: the
 original's own checkpoint restores the networks and replay but starts its ``stat.json`` empty.
 """
@@ -58,11 +60,19 @@ from experiments.original.curves import (
     ours_curves,
     ours_surplus,
 )
-from experiments.original.returns import SIGNIFICANCE, Final, final_returns, time_to_reach, welch
+from experiments.original.returns import (
+    SIGNIFICANCE,
+    Final,
+    final_returns,
+    final_value,
+    time_to_reach,
+    welch,
+)
 from experiments.original.runs import (
     ORIGINAL,
     OURS,
     SETTINGS,
+    SINGLE_THREAD_XLA,
     Original,
     OriginalRun,
     ScaleName,
@@ -70,6 +80,7 @@ from experiments.original.runs import (
     original_runs,
     ours,
     train_original,
+    train_ours,
 )
 from experiments.original.speed import speed_table
 from experiments.paper import (
@@ -77,7 +88,6 @@ from experiments.paper import (
     exit_status,
     progress,
     read_timings,
-    train_all,
 )
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
@@ -87,16 +97,29 @@ from swat_jax.runs.metrics import read_metrics
 # The report
 
 
-def compare(out: Path, settings: Settings, environment_set: str, timings: Mapping[str, float]) -> list[str]:
-    """Figure, CSV and the Markdown section of one set."""
-    run = ours(out, settings, environment_set)
+def compare(
+    out: Path,
+    settings: Settings,
+    environment_set: str,
+    timings: Mapping[str, float],
+    seed_bodies: Sequence[str] = (),
+) -> list[str]:
+    """Figure, CSV and the Markdown section of one set; ``seed_bodies`` of the set are tabulated seed by seed
+    (none of them in the set: the body furthest from the original)."""
     originals = [r for r in original_runs(out, settings, environment_set) if r.finished()]
     sides = {}
     if originals:
         sides[ORIGINAL] = [original_curves(r) for r in originals]
-    rows = read_metrics(run.run_dir) if (run.run_dir / "metrics.csv").is_file() else []
+    seed_rows = [
+        (read_metrics(run.run_dir), timings.get(run.name))
+        for run in ours(out, settings, environment_set)
+        if (run.run_dir / "metrics.csv").is_file()
+    ]
+    rows = [row for mine, _ in seed_rows for row in mine]
     if rows:
-        sides[OURS] = ours_curves(rows, settings, environment_set, timings.get(run.name))
+        sides[OURS] = [
+            curve for mine, wall in seed_rows for curve in ours_curves(mine, settings, environment_set, wall)
+        ]
     if not sides:
         return [f"## {environment_set}\n\nNothing trained yet."]
     points = curve_points(environment_set, sides)
@@ -123,14 +146,14 @@ def compare(out: Path, settings: Settings, environment_set: str, timings: Mappin
                 originals, timings.get(f"original-{environment_set}")
             )
         else:
-            minutes, steps_rate, updates_rate = _ours_speed(curves, rows, timings.get(run.name))
+            minutes, steps_rate, updates_rate = _ours_speed(curves, seed_rows)
         lines.append(
             f"| {side} | {len(curves)} | {first:.1f} | {final.mean:.1f} ± {final.standard_error:.1f} "
             f"| {minutes} | {steps_rate} | {updates_rate} |"
         )
     lines += _surplus_lines(originals, rows)
     if len(sides) == 2:
-        lines += _difference_lines(sides, finals, settings, environment_set)
+        lines += _difference_lines(sides, finals, settings, environment_set, seed_bodies)
     return lines
 
 
@@ -148,13 +171,17 @@ def _original_speed(originals: Sequence[OriginalRun], wall: float | None) -> tup
 
 
 def _ours_speed(
-    curves: Sequence[SeedCurves], rows: Sequence[Mapping[str, float]], wall: float | None
+    curves: Sequence[SeedCurves], seed_rows: Sequence[tuple[Sequence[Mapping[str, float]], float | None]]
 ) -> tuple[str, str, str]:
-    """swat_jax's table cells: wall clock to the budget, env steps/s and updates/s per seed."""
-    to_budget = max(c.seconds[max(c.seconds)] for c in curves) if wall else None
-    minutes = "-" if to_budget is None else f"{to_budget / 60:.1f}, every seed in one program"
+    """swat_jax's table cells: wall clock to the budget (mean over the seeds whose wall clock was recorded),
+    env steps/s and updates/s per seed."""
+    timed = [curve for curve, (_, wall) in zip(curves, seed_rows, strict=True) if wall is not None]
+    to_budget = [curve.seconds[max(curve.seconds)] for curve in timed]
+    minutes = f"{np.mean(to_budget) / 60:.1f} per seed (one core each)" if to_budget else "-"
+    rows = [row for mine, _ in seed_rows for row in mine]
     stored_rate = float(np.mean([row["steps_per_second"] for row in rows]))
-    return minutes, f"{stored_rate:.1f}", f"{stored_rate / np.mean(ours_surplus(rows)):.1f}"
+    surplus = np.mean([value for mine, _ in seed_rows for value in ours_surplus(mine)])
+    return minutes, f"{stored_rate:.1f}", f"{stored_rate / surplus:.1f}"
 
 
 def _surplus_lines(originals: Sequence[OriginalRun], rows: Sequence[Mapping[str, float]]) -> list[str]:
@@ -183,8 +210,14 @@ def _difference_lines(
     finals: Mapping[str, Final],
     settings: Settings,
     environment_set: str,
+    seed_bodies: Sequence[str],
 ) -> list[str]:
-    """The two sides' difference, Welch's test, the per-body table and the wall clock to the original's return."""
+    """The two sides' difference, Welch's test, the per-body table, the seed tables of ``seed_bodies`` (none in
+    the set: of the body furthest from the original) and the wall clock to the original's return."""
+    bodies = get_set(environment_set).train
+    tabulated = [body for body in seed_bodies if body in bodies] or [
+        _furthest_body(sides, settings, environment_set)
+    ]
     a, b = finals[ORIGINAL], finals[OURS]
     p = welch(a, b)
     verdict = "within the noise" if p >= SIGNIFICANCE else "beyond the noise: a fidelity bug to find"
@@ -197,10 +230,50 @@ def _difference_lines(
         "",
         *body_table(sides, settings, environment_set),
         "",
+        *(line for body in tabulated for line in [*seed_table(sides, settings, environment_set, body), ""]),
         f"Wall clock to first reach the original's final return ({a.mean:.1f}) on the mean-over-seeds curve: "
         + "; ".join(f"{side} {'never' if t is None else f'{t / 60:.1f} min'}" for side, t in reached.items())
-        + " (the original: one seed's run on one core; swat_jax: every seed at once on all cores).",
+        + " (mean over seeds; each seed one process on one core).",
     ]
+
+
+def _furthest_body(
+    sides: Mapping[str, Sequence[SeedCurves]], settings: Settings, environment_set: str
+) -> str:
+    """The body whose final returns differ most between the sides: the lowest Welch p."""
+
+    def p_value(body: str) -> float:
+        finals = (final_returns(sides[side], settings, environment_set, body) for side in (ORIGINAL, OURS))
+        return float(np.nan_to_num(welch(*finals), nan=1.0))
+
+    return min(get_set(environment_set).train, key=p_value)
+
+
+def seed_table(
+    sides: Mapping[str, Sequence[SeedCurves]], settings: Settings, environment_set: str, body: str
+) -> list[str]:
+    """``body`` seed by seed on both sides: its final return and episode length, its best curve point, and
+    when (if ever) it first reached the original's final return on it, to tell seeds that stay on a plateau
+    from those that break out of it."""
+    target = final_returns(sides[ORIGINAL], settings, environment_set, body).mean
+    lines = [
+        f"{body} seed by seed (steps are counted steps; the original's final return on it: {target:.1f}):",
+        "",
+        "| implementation | seed | final return | final episode length | best point | first point at "
+        f"{target:.0f} or more |",
+        "|---|---|---|---|---|---|",
+    ]
+    for side in (ORIGINAL, OURS):
+        for seed, curve in enumerate(sides[side]):
+            line = curve.returns[body]
+            best = max(line, key=line.__getitem__)
+            reached = next((step for step in sorted(line) if line[step] >= target), None)
+            length = final_value(curve.lengths.get(body, {}), settings, environment_set)
+            lines.append(
+                f"| {side} | {seed} | {final_value(line, settings, environment_set):.0f} | {length:.0f} "
+                f"| {line[best]:.0f} at {best:,} | {'never' if reached is None else f'{reached:,}'} |"
+            )
+    return lines
 
 
 def body_table(
@@ -221,7 +294,12 @@ def body_table(
 
 
 def report(
-    out: Path, settings: Settings, sets: Sequence[str], argv: Sequence[str], original: Original
+    out: Path,
+    settings: Settings,
+    sets: Sequence[str],
+    argv: Sequence[str],
+    original: Original,
+    seed_bodies: Sequence[str] = (),
 ) -> Path:
     timings = read_timings(out)
     versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
@@ -237,12 +315,12 @@ def report(
         f"{s.batch_size}; {s.random_steps:,} random-action steps per body; replay {s.capacity:,} per body; "
         f"{s.seeds} seeds.",
         f"- The original: its unmodified main.py, one process per seed with one torch thread, "
-        f"{original.parallel} at a time. swat_jax: `python -m swat_jax.train --preset paper`, every seed in "
-        "one program.",
+        f"{original.parallel} at a time. swat_jax: `python -m swat_jax.train --preset paper`, one process per "
+        f"seed as well, single-threaded and pinned to a core, {original.parallel} at a time.",
         "",
     ]
     for environment_set in sets:
-        lines += [*compare(out, settings, environment_set, timings), ""]
+        lines += [*compare(out, settings, environment_set, timings, seed_bodies), ""]
     path = out / "against_original.md"
     path.write_text("\n".join(lines))
     return path
@@ -277,13 +355,15 @@ class AgainstOriginalCommand:
     )
     """The folder with run_trainer.py that runs the original main.py unmodified (default $ORIGINAL_TOOLS)."""
     parallel: int = dataclasses.field(default_factory=host_cores)
-    """Original seeds run at once, one torch thread each (default: this machine's cores)."""
+    """Seeds of each side run at once, one core each (default: this machine's cores)."""
     original_timeout: float = 6 * 3600.0
     """Seconds after which an original seed is stopped."""
     out: Path = Path("experiments/results/against_original")
     """The folder of runs, figures and the report."""
+    seed_bodies: tuple[str, ...] = ()
+    """Bodies the report tabulates seed by seed, both sides (final return and episode length, best point, when a seed first reached the original's final return); a set with none of them: its body furthest from the original."""
     dry_run: bool = False
-    """Write swat_jax's config file, print both sides' commands and stop."""
+    """Write swat_jax's config files, print both sides' commands and stop."""
     speed: bool = False
     """Measure throughput at the paper's sizes (both sides, --sets) and print a Markdown table instead of training curves."""
     speed_seconds: float = 120.0
@@ -307,7 +387,7 @@ def settings_from(args: AgainstOriginalCommand, sets: Sequence[str]) -> Settings
 def run_sets(
     out: Path, settings: Settings, sets: Sequence[str], original: Original, only: str | None
 ) -> None:
-    """Train both sides on every set: the original's seeds first, then swat_jax's program."""
+    """Train both sides on every set: the original's seeds first, then swat_jax's."""
     for environment_set in sets:
         if only != "swat_jax":
             why = original.missing()
@@ -315,7 +395,7 @@ def run_sets(
                 raise GridError(f"cannot run the original trainer: {why}; or give --only swat_jax")
             train_original(original_runs(out, settings, environment_set), original, out)
         if only != "original":
-            train_all([ours(out, settings, environment_set)], out)
+            train_ours(ours(out, settings, environment_set), original.parallel, out)
 
 
 def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Original) -> None:
@@ -325,11 +405,13 @@ def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Ori
             print(
                 f"OMP_NUM_THREADS=1 {shlex.join(run.command(original.python, original.tools, original.timeout))}"
             )
-        run = ours(out, settings, environment_set)
-        steps = progress(run)
-        state = "new" if steps is None else f"resumes at {steps:,} steps"
-        run.write_config()
-        print(f"python {shlex.join(run.command()[1:])}  # {state}")
+        for run in ours(out, settings, environment_set):
+            steps = progress(run)
+            state = "new" if steps is None else f"resumes at {steps:,} steps"
+            run.write_config()
+            print(
+                f"XLA_FLAGS={shlex.quote(SINGLE_THREAD_XLA)} python {shlex.join(run.command()[1:])}  # {state}"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -354,7 +436,7 @@ def main(argv: list[str] | None = None) -> int:
             print_plan(out, settings, sets, original)
             return None
         run_sets(out, settings, sets, original, args.only)
-        return report(out, settings, sets, argv, original)
+        return report(out, settings, sets, argv, original, args.seed_bodies)
 
     return exit_status(work)
 

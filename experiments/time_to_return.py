@@ -58,7 +58,7 @@ import tyro
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.original.curves import SeedCurves, original_curves, ours_curves
 from experiments.original.returns import Final, final_returns, welch
-from experiments.original.runs import SETTINGS, ScaleName, Settings, original_runs, ours
+from experiments.original.runs import SETTINGS, ScaleName, Settings, original_runs, paper_config
 from experiments.paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
@@ -233,7 +233,7 @@ def candidate_run(out: Path, settings: Settings, environment_set: str, name: str
     devices, run_dir = CPU_DEVICES.get(name, 1), out / "runs" / f"{environment_set}-{name}"
     candidate = CANDIDATES[name]
     if candidate.preset == "paper":
-        scaled = dataclasses.replace(ours(out, settings, environment_set).config, run_dir=str(run_dir))
+        scaled = paper_config(settings, environment_set, run_dir)
     else:
         interval = settings.log_interval(environment_set)
         steps = settings.budget(environment_set)

@@ -30,10 +30,14 @@ def flag_values(flags) -> dict[str, str]:
 
 @pytest.mark.parametrize("environment_set", ["hopper", "walker"])
 def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_path, environment_set):
-    ours = config_values(runs.ours(tmp_path, MICRO, environment_set).config)
-    for seed, run in enumerate(runs.original_runs(tmp_path, MICRO, environment_set)):
-        theirs = flag_values(run.flags())
-        assert theirs["--seed"] == str(seed)
+    seeds = runs.ours(tmp_path, MICRO, environment_set)
+    assert len(seeds) == MICRO.seeds and len({run.run_dir for run in seeds}) == MICRO.seeds
+    for seed, (run, mine) in enumerate(
+        zip(runs.original_runs(tmp_path, MICRO, environment_set), seeds, strict=True)
+    ):
+        theirs, ours = flag_values(run.flags()), config_values(mine.config)
+        assert int(theirs["--seed"]) == int(ours["--seed"]) == seed, "one process per seed on both sides"
+        assert int(ours["--seeds"]) == 1
         same = {
             "--network.width": "--attention_embedding_size",
             "--network.heads": "--attention_heads",
@@ -51,7 +55,7 @@ def test_both_sides_train_with_the_same_sizes_hyperparameters_and_budget(tmp_pat
             == {"hopper": "environments/hoppers", "walker": "environments/walkers"}[environment_set]
         )
         assert int(theirs["--max_timesteps"]) == MICRO.budget(environment_set)
-    assert (ours["--preset"], ours["--seeds"]) == ("paper", MICRO.seeds)
+    assert ours["--preset"] == "paper"
     bodies = len(get_set(environment_set).train)
     stored = int(ours["--steps"])
     assert stored == MICRO.stored_budget(environment_set) >= 1.75 * MICRO.budget(environment_set), (
@@ -70,12 +74,14 @@ def test_a_budget_off_the_curves_grid_is_refused_with_the_fix(tmp_path, capsys):
     assert "must be a multiple of 300" in capsys.readouterr().err
 
 
-def test_dry_run_prints_every_seed_of_the_original_and_one_swat_jax_program(tmp_path, capsys):
+def test_dry_run_prints_every_seed_of_both_sides_each_on_one_thread(tmp_path, capsys):
     assert against.main(["--dry-run", "--scale", "micro", "--sets", "hopper", "--out", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == MICRO.seeds + 1
-    assert all("run_trainer.py" in line and "OMP_NUM_THREADS=1" in line for line in lines[:-1])
-    assert "swat_jax.train" in lines[-1] and lines[-1].endswith("# new")
+    assert len(lines) == 2 * MICRO.seeds
+    theirs, ours = lines[: MICRO.seeds], lines[MICRO.seeds :]
+    assert all("run_trainer.py" in line and "OMP_NUM_THREADS=1" in line for line in theirs)
+    assert all("swat_jax.train" in line and line.endswith("# new") for line in ours)
+    assert all("intra_op_parallelism_threads=1" in line for line in ours)
 
 
 def write_original_seed(run: runs.OriginalRun, timesteps, rewards_by_body, round_seconds) -> None:
@@ -143,7 +149,18 @@ def plotted(csv_path: Path) -> dict[tuple[str, str], list[dict[str, str]]]:
 
 
 def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys):
-    argv = ["--scale", "micro", "--sets", "hopper", "--only", "swat_jax", "--out", str(tmp_path)]
+    argv = [
+        "--scale",
+        "micro",
+        "--sets",
+        "hopper",
+        "--only",
+        "swat_jax",
+        "--parallel",
+        "1",
+        "--out",
+        str(tmp_path),
+    ]
     assert against.main(argv) == 0
     lines = plotted(tmp_path / "hopper.csv")
     panels = ["Hopper++: mean over bodies", "Hopper++: hopper_3", "Hopper++: hopper_4", "Hopper++: hopper_5"]
@@ -153,12 +170,16 @@ def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys)
     assert all(int(row["seeds"]) == MICRO.seeds for row in mean_line)
     assert (tmp_path / "hopper.png").stat().st_size > 10_000
     report = (tmp_path / "against_original.md").read_text()
-    assert f"| {runs.OURS} | {MICRO.seeds} |" in report
+    assert f"| {runs.OURS} | {MICRO.seeds} |" in report and "per seed (one core each)" in report
     assert "Welch" not in report, "no test without the original's side"
-    # A second call keeps the finished run instead of training it again.
+    timings = json.loads((tmp_path / "timings.json").read_text())
+    assert sorted(timings) == [f"hopper-swat_jax-seed{k}" for k in range(MICRO.seeds)]
+    # A second call keeps the finished runs instead of training them again.
     capsys.readouterr()
     assert against.main(argv) == 0
-    assert f"done ({MICRO.stored_budget('hopper'):,} steps), kept" in capsys.readouterr().err
+    assert (
+        capsys.readouterr().err.count(f"done ({MICRO.stored_budget('hopper'):,} steps), kept") == MICRO.seeds
+    )
 
 
 @pytest.mark.skipif(
@@ -198,3 +219,36 @@ def test_the_body_table_shows_which_body_disagrees():
     rows = {row.split("|")[1].strip(): row.split("|")[-2].strip() for row in table[2:]}
     assert float(rows["hopper_3"]) == pytest.approx(1.0) and float(rows["hopper_4"]) == pytest.approx(1.0)
     assert float(rows["hopper_5"]) < 1e-3
+
+
+def test_the_seed_table_tells_seeds_on_a_plateau_from_those_that_break_out():
+    def seed(hopper_3, length):
+        flat = {300: 1.0, 600: 1.0}
+        return curves.SeedCurves(
+            {"hopper_3": dict(zip((300, 600), hopper_3, strict=True)), "hopper_4": flat, "hopper_5": flat},
+            {300: 1.0, 600: 2.0},
+            {"hopper_3": {300: length, 600: length}},
+        )
+
+    sides = {
+        runs.ORIGINAL: [seed((50.0, 100.0), 40.0), seed((60.0, 120.0), 50.0)],
+        runs.OURS: [seed((110.0, 20.0), 30.0), seed((40.0, 45.0), 20.0)],
+    }
+    finals = {side: returns.final_returns(seeds, MICRO, "hopper") for side, seeds in sides.items()}
+    lines = against._difference_lines(sides, finals, MICRO, "hopper", ())
+    assert any(line.startswith("hopper_3 seed by seed") and "110.0" in line for line in lines), (
+        "by default the body whose finals differ (the others are equal) with the original's final on it"
+    )
+    rows = [line for line in lines if line.startswith(f"| {runs.OURS} |")]
+    assert rows[0] == f"| {runs.OURS} | 0 | 20 | 30 | 110 at 300 | 300 |", "broke out at 300, fell back"
+    assert rows[1] == f"| {runs.OURS} | 1 | 45 | 20 | 45 at 600 | never |", "never reached the original"
+    chosen = against._difference_lines(sides, finals, MICRO, "hopper", ("hopper_4", "walker_7_main"))
+    assert [line.split(" ")[0] for line in chosen if "seed by seed" in line] == ["hopper_4"]
+
+
+def test_panel_titles_name_the_set_shortly_enough_to_fit_above_a_panel():
+    bodies = get_set("animal_walkers").train
+    seed = curves.SeedCurves({body: {2500: 1.0} for body in bodies}, {2500: 1.0})
+    panels = {point.panel for point in curves.curve_points("animal_walkers", {runs.OURS: [seed]})}
+    assert panels == {"Animal-Walkers: mean over bodies", *(f"Animal-Walkers: {body}" for body in bodies)}
+    assert get_set("hopper").title == "Hopper++"

@@ -19,11 +19,12 @@ from swat_jax.plot import CurvePoint, summarise
 
 @dataclasses.dataclass(frozen=True)
 class SeedCurves:
-    """One seed's binned training returns: by body, {grid step: mean return}, and the wall clock (s from
-    the start of the seed's run) at each grid step."""
+    """One seed's binned training returns: by body, {grid step: mean return}, the wall clock (s from the start
+    of the seed's run) at each grid step, and by body {grid step: mean episode length}."""
 
     returns: dict[str, dict[int, float]]
     seconds: dict[int, float]
+    lengths: dict[str, dict[int, float]] = dataclasses.field(default_factory=dict)
 
     def mean_over_bodies(self) -> dict[int, float]:
         steps = sorted({step for curve in self.returns.values() for step in curve})
@@ -39,6 +40,15 @@ def grid_step(steps: float, interval: int, budget: int) -> int:
     return min(max(1, math.ceil(steps / interval)) * interval, budget)
 
 
+def binned(bins: Sequence[int], values: Sequence[float]) -> dict[int, float]:
+    """{grid step: mean of the finite ``values`` whose ``bins`` entry is that step}."""
+    grouped: dict[int, list[float]] = {}
+    for step, value in zip(bins, values, strict=True):
+        if math.isfinite(value):
+            grouped.setdefault(step, []).append(value)
+    return {step: float(np.mean(group)) for step, group in grouped.items()}
+
+
 def original_curves(run: OriginalRun) -> SeedCurves:
     """The original seed's stat.json rows binned on the grid, with the trainer log's wall clock of each
     round (its log line k is written by the same training round as stat.json's row k)."""
@@ -48,15 +58,12 @@ def original_curves(run: OriginalRun) -> SeedCurves:
         run.settings.budget(run.environment_set),
     )
     bins = [grid_step(step, interval, budget) for step in stat["timestep"]]
-    returns = {}
-    for body in get_set(run.environment_set).train:
-        values: dict[int, list[float]] = {}
-        for step, value in zip(bins, stat[f"{body}_episode_reward"], strict=True):
-            values.setdefault(step, []).append(value)
-        returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
+    bodies = get_set(run.environment_set).train
+    returns = {body: binned(bins, stat[f"{body}_episode_reward"]) for body in bodies}
+    lengths = {body: binned(bins, stat[f"{body}_episode_len"]) for body in bodies}
     rounds = [float(t) for t in re.findall(r"\[harness\] t=\s*([\d.]+)s round=", run.log())]
     seconds = dict(zip(bins, rounds, strict=False))
-    return SeedCurves(returns, seconds)
+    return SeedCurves(returns, seconds, lengths)
 
 
 def original_surplus(run: OriginalRun) -> float | None:
@@ -95,15 +102,11 @@ def ours_curves(
         startup = (wall - windows[-1]) if wall is not None else 0.0
         kept = [(row, t) for row, t in zip(mine, windows, strict=True) if row["counted_steps"] <= budget]
         bins = [grid_step(row["counted_steps"], interval, budget) for row, _ in kept]
-        returns = {}
-        for body in get_set(environment_set).train:
-            values: dict[int, list[float]] = {}
-            for step, (row, _) in zip(bins, kept, strict=True):
-                if math.isfinite(row[f"return/{body}"]):
-                    values.setdefault(step, []).append(row[f"return/{body}"])
-            returns[body] = {step: float(np.mean(v)) for step, v in values.items()}
+        bodies = get_set(environment_set).train
+        returns = {body: binned(bins, [row[f"return/{body}"] for row, _ in kept]) for body in bodies}
+        lengths = {body: binned(bins, [row[f"length/{body}"] for row, _ in kept]) for body in bodies}
         seconds = {step: startup + float(t) for step, (_, t) in zip(bins, kept, strict=True)}
-        curves.append(SeedCurves(returns, seconds))
+        curves.append(SeedCurves(returns, seconds, lengths))
     return curves
 
 
@@ -115,7 +118,7 @@ def ours_surplus(rows: Sequence[Mapping[str, float]]) -> list[float]:
 
 def curve_points(environment_set: str, sides: Mapping[str, Sequence[SeedCurves]]) -> list[CurvePoint]:
     """The plotted points: a panel for the mean over bodies and one per body, a line per implementation."""
-    label = get_set(environment_set).description or environment_set
+    label = get_set(environment_set).title
     points = []
     for implementation, curves in sides.items():
         points += summarise(

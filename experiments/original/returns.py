@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
@@ -37,14 +37,17 @@ def final_returns(
 ) -> Final:
     """Each seed's mean over the points of the budget's last ``final_fraction`` (points past the budget left
     out): of the mean over bodies, or of ``body``'s curve."""
+    lines = [curve.mean_over_bodies() if body is None else curve.returns[body] for curve in curves]
+    return Final(np.array([final_value(line, settings, environment_set) for line in lines]))
+
+
+def final_value(line: Mapping[int, float], settings: Settings, environment_set: str) -> float:
+    """The mean of ``line`` ({grid step: value}) over the points of the budget's last ``final_fraction``;
+    NaN if it has none."""
     budget = settings.budget(environment_set)
     start = budget * (1 - settings.final_fraction)
-    values = []
-    for curve in curves:
-        line = curve.mean_over_bodies() if body is None else curve.returns[body]
-        tail = [value for step, value in line.items() if start < step <= budget]
-        values.append(float(np.mean(tail)) if tail else math.nan)
-    return Final(np.array(values))
+    tail = [value for step, value in line.items() if start < step <= budget]
+    return float(np.mean(tail)) if tail else math.nan
 
 
 def welch(a: Final, b: Final) -> float:

@@ -1,10 +1,12 @@
-"""The two sides' runs at one scale: swat_jax's paper-preset run of every seed, and the original trainer's
-seeds, each in its own process with its own virtual environment (``--original-tools``).
+"""The two sides' runs at one scale, each seed its own process on one core: swat_jax's paper preset, and the
+original trainer in its own virtual environment (``--original-tools``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import hashlib
 import math
 import os
@@ -13,7 +15,7 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -22,6 +24,7 @@ from experiments.paper import (
     GridInterrupted,
     RunSpec,
     add_timing,
+    progress,
 )
 from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
@@ -75,12 +78,13 @@ class Settings:
 
     def config(self, base: TrainConfig, environment_set: str, run_dir: Path, **fields: Any) -> TrainConfig:
         """``base`` (a preset) with these sizes and hyperparameters, SWAT, every seed in one program, in
-        ``run_dir``, a checkpoint every 4 curve points; ``fields`` (the budget, the log interval) on top."""
+        ``run_dir``, a checkpoint every 4 curve points; ``fields`` (the budget, the log interval, or one
+        seed's ``seeds`` and ``seed``) on top."""
+        fields = {"seeds": self.seeds, **fields}
         return dataclasses.replace(
             base,
             env=environment_set,
             algo="swat",
-            seeds=self.seeds,
             run_dir=str(run_dir),
             network=dataclasses.replace(
                 base.network,
@@ -169,15 +173,31 @@ SETTINGS = {
 # The two sides' runs
 
 
-def ours(out: Path, settings: Settings, environment_set: str) -> RunSpec:
-    """swat_jax's paper-preset run of every seed in one program: lock-step rounds, so it stores more steps
-    than it counts; it runs for :meth:`Settings.stored_budget` steps and logs a row (with the steps
-    counted so far) after every chunk, for the curves to be binned by counted steps."""
+def ours(out: Path, settings: Settings, environment_set: str) -> list[RunSpec]:
+    """swat_jax's paper-preset run of each seed (:func:`paper_config`), as the original runs its seeds: one
+    program (one process) per seed, in ``OUT/runs/<set>-swat_jax-seed<k>``."""
+    return [
+        RunSpec(
+            paper_config(
+                settings,
+                environment_set,
+                out / "runs" / f"{environment_set}-swat_jax-seed{seed}",
+                seeds=1,
+                seed=seed,
+            )
+        )
+        for seed in range(settings.seeds)
+    ]
+
+
+def paper_config(settings: Settings, environment_set: str, run_dir: Path, **fields: Any) -> TrainConfig:
+    """The paper preset at these settings. Lock-step rounds store more steps than they count, so it runs for
+    :meth:`Settings.stored_budget` steps and logs a row (with the steps counted so far) after every chunk,
+    for the curves to be binned by counted steps; ``fields`` on top."""
     chunk = len(get_set(environment_set).train) * CHUNK
-    run_dir = out / "runs" / f"{environment_set}-swat_jax"
     steps = settings.stored_budget(environment_set)
-    return RunSpec(
-        settings.config(PRESETS["paper"], environment_set, run_dir, steps=steps, log_interval=chunk)
+    return settings.config(
+        PRESETS["paper"], environment_set, run_dir, steps=steps, log_interval=chunk, **fields
     )
 
 
@@ -258,6 +278,39 @@ class Original:
         return None
 
 
+Start = Callable[[int], subprocess.Popen]
+"""Starts one seed's process on a core slot (0 to ``parallel`` - 1) and returns it."""
+Finish = Callable[[int, float], None]
+"""Checks one seed's exit status and wall clock (s) and keeps its results."""
+
+
+def side_by_side(seeds: Sequence[tuple[Start, Finish]], parallel: int) -> None:
+    """Run every seed's process, ``parallel`` at a time, each on its own core slot. Ctrl-C, or a seed that
+    fails its check, stops those still running (Ctrl-C raises GridInterrupted)."""
+    pending, running, free = list(seeds), [], list(range(parallel))
+    try:
+        while pending or running:
+            while pending and free:
+                start, finish = pending.pop(0)
+                slot = free.pop(0)
+                running.append((start(slot), finish, slot, time.perf_counter()))
+            time.sleep(1.0)
+            for entry in list(running):
+                process, finish, slot, began = entry
+                if process.poll() is None:
+                    continue
+                running.remove(entry)
+                free.append(slot)
+                finish(process.returncode, time.perf_counter() - began)
+    except KeyboardInterrupt:
+        raise GridInterrupted(
+            "stopped; the finished seeds are kept, run the same command again to go on"
+        ) from None
+    finally:
+        for process, *_ in running:
+            process.terminate()
+
+
 def train_original(runs: Sequence[OriginalRun], original: Original, out: Path) -> None:
     """Run every unfinished seed, ``original.parallel`` at a time, each with one torch thread; copy its
     stat.json, args.txt and log into OUT; add the wall clock to ``timings.json``."""
@@ -268,27 +321,69 @@ def train_original(runs: Sequence[OriginalRun], original: Original, out: Path) -
     if not pending:
         return
     prepare_tree(original)
-    start, running = time.perf_counter(), []
+    start = time.perf_counter()
     try:
-        while pending or running:
-            while pending and len(running) < original.parallel:
-                run = pending.pop(0)
-                running.append((run, _start_original(run, original), time.perf_counter()))
-            time.sleep(1.0)
-            for entry in list(running):
-                run, process, began = entry
-                if process.poll() is None:
-                    continue
-                running.remove(entry)
-                _collect_original(run, process.returncode, time.perf_counter() - began)
-    except KeyboardInterrupt:
-        for _, process, _ in running:
-            process.terminate()
-        raise GridInterrupted(
-            "stopped; the finished seeds are kept, run the same command again to go on"
-        ) from None
+        side_by_side(
+            [
+                (functools.partial(_start_original, run, original), functools.partial(_collect_original, run))
+                for run in pending
+            ],
+            original.parallel,
+        )
     finally:
         add_timing(out, f"original-{runs[0].environment_set}", time.perf_counter() - start)
+
+
+SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+"""XLA flags that keep a swat_jax seed's program on one thread, as the original's seeds run on one."""
+
+
+def train_ours(runs: Sequence[RunSpec], parallel: int, out: Path) -> None:
+    """Train every seed that has not reached its budget (resuming one that stopped part-way), ``parallel``
+    at a time, each process single-threaded and pinned to one core; its output in ``OUT/runs/<name>.log``,
+    its wall clock added to ``timings.json``."""
+    pending = []
+    for run in runs:
+        steps = progress(run)
+        if steps is not None and steps >= run.config.steps:
+            print(f"{run.name}: done ({steps:,} steps), kept", file=sys.stderr)
+        else:
+            pending.append((functools.partial(_start_ours, run), functools.partial(_collect_ours, run, out)))
+    side_by_side(pending, parallel)
+
+
+def _start_ours(run: RunSpec, slot: int) -> subprocess.Popen:
+    steps = progress(run)
+    if steps is None:
+        run.write_config()
+        command = run.command()
+    else:
+        command = [*run.command()[:3], "--resume", str(run.run_dir), "--steps", str(run.config.steps)]
+    command.append("--no-progress")
+    print(f"{run.name} on core {slot}: {shlex.join(command)}", file=sys.stderr)
+    flags = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_THREAD_XLA}".strip()
+    cores = sorted(os.sched_getaffinity(0))
+    process = subprocess.Popen(
+        command,
+        stdout=_log_file(run).open("w"),
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "XLA_FLAGS": flags},
+    )
+    with contextlib.suppress(ProcessLookupError):  # a process that already ended needs no core
+        os.sched_setaffinity(process.pid, {cores[slot % len(cores)]})
+    return process
+
+
+def _log_file(run: RunSpec) -> Path:
+    run.run_dir.parent.mkdir(parents=True, exist_ok=True)
+    return run.run_dir.parent / f"{run.name}.log"
+
+
+def _collect_ours(run: RunSpec, out: Path, status: int, seconds: float) -> None:
+    add_timing(out, run.name, seconds)
+    if status != 0 or (progress(run) or 0) < run.config.steps:
+        raise GridError(f"{run.name}: swat_jax.train exited with status {status}; its log: {_log_file(run)}")
+    print(f"{run.name}: finished in {seconds / 60:.1f} min", file=sys.stderr)
 
 
 def prepare_tree(original: Original) -> None:
@@ -299,7 +394,8 @@ def prepare_tree(original: Original) -> None:
     subprocess.run([str(original.python), "-c", setup], env=environment, cwd="/tmp", check=True)
 
 
-def _start_original(run: OriginalRun, original: Original) -> subprocess.Popen:
+def _start_original(run: OriginalRun, original: Original, _slot: int) -> subprocess.Popen:
+    """Start the seed, one torch thread, on no core in particular (as every committed original run was)."""
     for stale in (ORIGINAL_WORK / "src" / "results", ORIGINAL_WORK / "src" / "buffers"):
         shutil.rmtree(stale / run.experiment_id, ignore_errors=True)
     run.folder.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,11 @@ class EnvironmentSet:
     test: tuple[str, ...] = ()
     description: str = ""
 
+    @property
+    def title(self) -> str:
+        """The set's short name for figure panels: its description without its parenthesis (or its name)."""
+        return self.description.split(" (")[0] or self.name
+
     def split(self, split: str) -> tuple[str, ...]:
         """The bodies of ``split`` ('train', 'test' or 'all')."""
         splits = {"train": self.train, "test": self.test, "all": self.train + self.test}
