@@ -372,18 +372,6 @@ class AgainstOriginalCommand:
     """--speed: timed iterations of each swat_jax preset, after one warm-up."""
 
 
-def settings_from(args: AgainstOriginalCommand, sets: Sequence[str]) -> Settings:
-    """The scale's settings with the command's seeds and steps."""
-    settings = SETTINGS[args.scale]
-    if args.seeds is not None:
-        settings = dataclasses.replace(settings, seeds=args.seeds)
-    if args.steps is not None:
-        settings = dataclasses.replace(settings, steps={name: args.steps for name in sets})
-    if settings.seeds < 1:
-        raise GridError(f"--seeds must be 1 or more, got {settings.seeds}")
-    return settings
-
-
 def run_sets(
     out: Path, settings: Settings, sets: Sequence[str], original: Original, only: str | None
 ) -> None:
@@ -429,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise GridError(f"cannot run the original trainer: {why}")
             print(speed_table(sets, original, args.speed_seconds, args.speed_iterations))
             return None
-        settings = settings_from(args, sets)
+        settings = SETTINGS[args.scale].given(args.seeds, args.steps, sets)
         for environment_set in sets:
             get_set(environment_set)
         if args.dry_run:

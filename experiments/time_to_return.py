@@ -2,7 +2,7 @@
 SWAT trainer's final return, beside the original's own.
 
     python -m experiments.time_to_return [--sets hopper walker] [--scale small] [--candidates paper fast]
-        [--seeds 4] [--window 3] [--horizon 1.5] [--original-from experiments/results/against_original]
+        [--seeds 4] [--steps 120000] [--window 3] [--horizon 1.5] [--original-from experiments/results/against_original]
         [--out DIR] [--dry-run]
 
 On one environment set, at a scale of experiments/against_original.py (the same network sizes, learning
@@ -463,6 +463,8 @@ class TimeToReturnCommand:
     """swat_jax configurations to train (names of CANDIDATES: paper, fast, fast-c4-k16-u64-b100, ...; default all)."""
     seeds: int | None = None
     """Seeds of every configuration; None: the scale's."""
+    steps: int | None = None
+    """Counted environment steps per seed on every set, summed over bodies: the original's budget, which its runs in --original-from must have run (against_original.py --steps); None: the scale's."""
     window: int = 3
     """Curve points of the trailing mean that must reach R."""
     original_from: Path = Path("experiments/results/against_original")
@@ -483,11 +485,7 @@ def main(argv: list[str] | None = None) -> int:
     args = tyro.cli(TimeToReturnCommand, args=argv, prog="python -m experiments.time_to_return")
 
     def work() -> Path | None:
-        settings = SETTINGS[args.scale]
-        if args.seeds is not None:
-            if args.seeds < 1:
-                raise GridError(f"--seeds must be 1 or more, got {args.seeds}")
-            settings = dataclasses.replace(settings, seeds=args.seeds)
+        settings = SETTINGS[args.scale].given(args.seeds, args.steps, args.sets)
         if args.window < 1:
             raise GridError(f"--window must be 1 or more, got {args.window}")
         if not args.horizon >= 1:

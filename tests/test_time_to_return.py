@@ -3,6 +3,7 @@ benchmark at micro scale against original runs written as the original's tools l
 
 import csv
 import dataclasses
+import json
 import sys
 
 import numpy as np
@@ -140,3 +141,25 @@ def test_every_candidate_is_its_preset_at_the_scale_with_its_changes(tmp_path):
     fast, recipe = config("fast-2dev"), config("fast-c4-k16-u256-b25-2dev")
     assert fast.td3.batch_size == 25 and fast.iteration.updates == 256
     assert dataclasses.replace(fast, run_dir="") == dataclasses.replace(recipe, run_dir="")
+
+
+def test_the_originals_budget_is_given_with_steps_and_a_run_of_another_is_refused(tmp_path, capsys):
+    longer = MICRO.given(None, 1200, ["hopper"])
+    original_out = tmp_path / "against"
+    for seed, run in enumerate(runs.original_runs(original_out, longer, "hopper")):
+        rewards = [10.0, 20.0, 30.0 + seed, 40.0 + seed]
+        write_original_seed(
+            run,
+            [300, 600, 900, 1200],
+            dict.fromkeys(("hopper_3", "hopper_4", "hopper_5"), rewards),
+            [1, 2, 3, 4],
+        )
+        (run.folder / "args.txt").write_text(json.dumps({"max_timesteps": 1200}))
+    argv = ["--scale", "micro", "--sets", "hopper", "--candidates", "fast", "--report-only"]
+    argv += ["--original-from", str(original_out), "--out", str(tmp_path / "out")]
+    assert ttr.main(argv) == 2
+    assert "to 1,200 counted steps, not 600: give --steps 1200" in capsys.readouterr().err
+    assert ttr.main([*argv, "--steps", "1200"]) == 0
+    assert "R = 40.5" in (tmp_path / "out" / "time_to_return.md").read_text(), "the last 20% of 1,200 steps"
+    assert ttr.main([*argv, "--steps", "0"]) == 2
+    assert "--steps must be 1 or more, got 0" in capsys.readouterr().err

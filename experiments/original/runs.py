@@ -8,6 +8,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import json
 import math
 import os
 import shlex
@@ -102,6 +103,20 @@ class Settings:
             checkpoint_interval=self.log_interval(environment_set) * 4,
             **fields,
         )
+
+    def given(self, seeds: int | None, steps: int | None, sets: Sequence[str]) -> Settings:
+        """These settings with a command's ``--seeds`` and ``--steps`` (counted steps on every one of
+        ``sets``), where given; GridError for fewer than one seed or step."""
+        settings = self
+        if seeds is not None:
+            if seeds < 1:
+                raise GridError(f"--seeds must be 1 or more, got {seeds}")
+            settings = dataclasses.replace(settings, seeds=seeds)
+        if steps is not None:
+            if steps < 1:
+                raise GridError(f"--steps must be 1 or more, got {steps}")
+            settings = dataclasses.replace(settings, steps={name: steps for name in sets})
+        return settings
 
     def preset_batch(self, base: TrainConfig) -> int:
         """The batch per body of ``base`` at this scale: the scale's (the original's) for a preset of the
@@ -247,7 +262,17 @@ class OriginalRun:
         return [str(python), str(tools / "run_trainer.py"), str(timeout), *self.flags()]
 
     def finished(self) -> bool:
-        return (self.folder / "stat.json").is_file()
+        """Whether the seed ran to its end; GridError if it ran another budget than these settings'."""
+        if not (self.folder / "stat.json").is_file():
+            return False
+        arguments = self.folder / "args.txt"
+        ran = int(float(json.loads(arguments.read_text())["max_timesteps"])) if arguments.is_file() else None
+        if ran is not None and ran != self.settings.budget(self.environment_set):
+            raise GridError(
+                f"{self.folder} holds a run of the original to {ran:,} counted steps, not "
+                f"{self.settings.budget(self.environment_set):,}: give --steps {ran}, or another folder"
+            )
+        return True
 
     def log(self) -> str:
         """The trainer's log, copied next to its ``stat.json``."""
