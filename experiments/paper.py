@@ -184,6 +184,18 @@ class RunSpec:
         """The command that starts this run (from :attr:`config_file`)."""
         return [sys.executable, "-m", "swat_jax.train", "--config", str(self.config_file)]
 
+    def resume_command(self) -> list[str]:
+        """The command that continues this run from its newest checkpoint to its budget."""
+        return [
+            sys.executable,
+            "-m",
+            "swat_jax.train",
+            "--resume",
+            str(self.run_dir),
+            "--steps",
+            str(self.config.steps),
+        ]
+
 
 def set_label(environment_set: str) -> str:
     """The set's name in run directory names: a benchmark set's name, or a folder's name."""
@@ -330,9 +342,7 @@ def train_all(runs: Sequence[RunSpec], out: Path) -> None:
         if steps is not None and steps >= budget:
             print(f"{label}: done ({steps:,} steps), kept", file=sys.stderr)
             continue
-        command = run.command() if steps is None else [
-            sys.executable, "-m", "swat_jax.train", "--resume", str(run.run_dir), "--steps", str(budget)
-        ]  # fmt: skip
+        command = run.command() if steps is None else run.resume_command()
         if steps is None:
             run.write_config()
         print(f"{label}: {'training' if steps is None else f'resuming at {steps:,} steps'}", file=sys.stderr)

@@ -378,13 +378,11 @@ def train_ours(runs: Sequence[RunSpec], parallel: int, out: Path) -> None:
 
 
 def _start_ours(run: RunSpec, slot: int) -> subprocess.Popen:
-    steps = progress(run)
-    if steps is None:
+    if progress(run) is None:
         run.write_config()
-        command = run.command()
+        command = [*run.command(), "--no-progress"]
     else:
-        command = [*run.command()[:3], "--resume", str(run.run_dir), "--steps", str(run.config.steps)]
-    command.append("--no-progress")
+        command = [*run.resume_command(), "--no-progress"]
     print(f"{run.name} on core {slot}: {shlex.join(command)}", file=sys.stderr)
     flags = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_THREAD_XLA}".strip()
     cores = sorted(os.sched_getaffinity(0))
