@@ -127,7 +127,7 @@ SCALES = {
             iteration=dataclasses.replace(
                 FAST.iteration, chunk=25, updates=40, random_steps=1000, capacity=50_000
             ),
-            td3=dataclasses.replace(FAST.td3, batch_size=100, learning_rate=0.001),
+            td3=dataclasses.replace(FAST.td3, batch_size=100, learning_rate=0.001, n_step=1),
             log_interval=4000,
             checkpoint_interval=40_000,
         ),

@@ -92,6 +92,8 @@ class Candidate:
     """Initial weights: flax or original (the original PyTorch code's)."""
     normalise: bool | None = None
     """Observations standardised by running statistics (FastTD3's normaliser)."""
+    n_step: int | None = None
+    """Rewards summed into each TD target (``--td3.n-step``)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -101,7 +103,7 @@ class Candidate:
                 iteration, exploration_noise=self.noise[0], exploration_noise_max=self.noise[1]
             )
         td3 = dataclasses.replace(
-            scaled.td3, **_given(batch_size=self.batch, learning_rate=self.learning_rate)
+            scaled.td3, **_given(batch_size=self.batch, learning_rate=self.learning_rate, n_step=self.n_step)
         )
         if self.c51:
             td3 = dataclasses.replace(td3, atoms=51, value_min=-100.0, value_max=400.0)
@@ -152,12 +154,17 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
     "fast-c51-2dev": Candidate(c51=True),
+    "fast-nstep1-2dev": Candidate(n_step=1),
+    "fast-nstep2-2dev": Candidate(n_step=2),
+    "fast-nstep3-2dev": Candidate(n_step=3),
+    "fast-u128-2dev": Candidate(updates=128),
+    "fast-u128-nstep3-2dev": Candidate(updates=128, n_step=3),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation (``paper-flax``: the
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
@@ -376,7 +383,7 @@ def set_section(
             f"| {curve.name} | {len(curve.returns)} | {seconds} | {ratio} | {steps} | "
             f"{curve.finals.mean:.1f} ± {curve.finals.standard_error:.1f} | {p} |"
         )
-    return [*lines, "", *body_finals_table(original, candidates)]
+    return [*lines, "", *body_finals_table(original, candidates), "", *stranded_table(original, candidates)]
 
 
 def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
@@ -402,6 +409,29 @@ def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]
             seeds = "" if len(final.values) == runs else f", {len(final.values)} of {runs} seeds"
             cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}{seeds}")
         lines.append(f"| {curve.name} | {' | '.join(cells)} |")
+    return lines
+
+
+def stranded_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
+    """Per body and configuration, the seeds whose final return there is below every seed of the
+    original's: where a recipe strands seeds on a plateau (a seed that never walks) rather than learning
+    a little less on every seed. Four seeds drawn like the original's four fall below all of them by chance
+    about one time in five each."""
+    bodies = list(original.body_finals)
+    lines = [
+        "Seeds below the original's lowest seed on each body (stranded seeds; by chance alone about 1 in 5):",
+        "",
+        f"| configuration | {' | '.join(bodies)} | all bodies |",
+        f"|---|{'---|' * (len(bodies) + 1)}",
+    ]
+    for curve in candidates:
+        cells = []
+        for body in bodies:
+            lowest = np.nanmin(original.body_finals[body].values)
+            final = _seeds_with_episodes(curve.body_finals[body])
+            cells.append(f"{int(np.sum(final.values < lowest))} of {len(final.values)}")
+        below = int(np.sum(curve.finals.values < np.min(original.finals.values)))
+        lines.append(f"| {curve.name} | {' | '.join(cells)} | {below} of {len(curve.finals.values)} |")
     return lines
 
 

@@ -2,7 +2,7 @@
 
 The host loop only calls the jitted iteration (collect a chunk in every copy of every body, then the
 chunk's TD3 updates, see :mod:`swat_jax.td3.iteration`), one at a time, writes metrics every
-``log_interval`` steps and checkpoints every ``checkpoint_interval`` steps. Ctrl-C or SIGTERM finishes
+``log_interval`` steps (by default a twentieth of the budget, at most 10,000) and checkpoints every ``checkpoint_interval`` steps. Ctrl-C or SIGTERM finishes
 the running iteration, writes a checkpoint and exits (a second one aborts at once); ``--resume RUN_DIR``
 continues from the newest checkpoint, and on the same machine the continued run equals an
 uninterrupted one exactly.
@@ -331,7 +331,7 @@ def _loop(
     config, env = experiment.config, experiment.env
     per_iteration = config.steps_per_iteration(env.num_bodies)
     total = config.iterations(env.num_bodies)
-    log_every = max(1, round(config.log_interval / per_iteration))
+    log_every = max(1, round(config.metrics_interval() / per_iteration))
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
     done = info.iterations
     seconds = info.seconds

@@ -16,8 +16,9 @@ TINY_TRAINING = {
         'td3=TD3Config(batch_size=8), iteration=IterationConfig(chunk=16, updates=2, schedule="all_tasks", '
         "rounds=False, random_steps=16, capacity=256))"
     ),
-    "steps=20_000": "steps=1008",
-    "width=32, layers=1, feedforward=64": "width=16, layers=1, feedforward=32, max_traversal_positions=3",
+    "steps=20_000": (
+        "steps=1008, network=NetworkSizes(width=16, layers=1, feedforward=32, max_traversal_positions=3)"
+    ),
 }
 """What the test changes in the training block so that it runs in seconds: a smaller network and one copy
 of hopper_3 (a folder that holds it alone; the ``env=`` replacement is added with the folder) for 63
@@ -47,7 +48,8 @@ def test_every_block_runs_in_order(tmp_path, monkeypatch, hopper_folder, capsys)
     training = shrunk(blocks["train"], {**TINY_TRAINING, 'env="hopper"': f'env="{hopper_folder}"'})
     namespace: dict = {}
     exec(
-        "from swat_jax.td3 import TD3Config\nfrom swat_jax.td3.iteration import IterationConfig\n" + training,
+        "from swat_jax.runs import NetworkSizes\nfrom swat_jax.td3 import TD3Config\n"
+        "from swat_jax.td3.iteration import IterationConfig\n" + training,
         namespace,
     )
     assert namespace["result"].env_steps == 1008 and not namespace["result"].interrupted

@@ -148,9 +148,10 @@ def test_the_paper_preset_keeps_the_original_loop_and_the_others_do_not():
 @pytest.mark.parametrize("bodies, rows", [(8, 500_000), (12, 333_333), (13, 307_692), (25, 160_000)])
 def test_sets_of_more_than_8_bodies_share_4m_replay_rows_as_the_original(bodies, rows):
     """The original's rb_max // K when K > rb_max // rb_per_env (Cheetah++ 333,333, WHH++ 307,692, CWHH++
-    160K); swat_jax's own presets keep 500K per body."""
+    160K); swat_jax's own presets keep their rows per body (intended the paper's 500K, fast 50K)."""
     assert PRESETS["paper"].iteration.rows_per_task(bodies) == rows
-    assert PRESETS["fast"].iteration.rows_per_task(bodies) == 500_000
+    assert PRESETS["intended"].iteration.rows_per_task(bodies) == 500_000
+    assert PRESETS["fast"].iteration.rows_per_task(bodies) == 50_000
     cheetah = dataclasses.replace(PRESETS["paper"], env="cheetah", steps=10_000_000)
     assert cheetah.replay_rows(12) == 333_333
 

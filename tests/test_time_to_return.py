@@ -12,6 +12,7 @@ from test_against_original import write_original_seed
 
 from experiments import time_to_return as ttr
 from experiments.original import curves, returns, runs
+from swat_jax.runs.config import PRESETS
 
 MICRO = runs.SETTINGS["micro"]
 
@@ -58,6 +59,27 @@ def test_the_body_table_shows_the_body_where_a_configuration_falls_short():
     assert "| fast | 194.0 ± 6.0 (0.53), 2 of 3 seeds | no episode ended |" in ttr.body_finals_table(
         original, [unfinished]
     ), "a seed without an episode in the window is left out"
+
+
+def test_the_stranded_table_counts_seeds_below_every_seed_of_the_original():
+    def curve(name: str, walker_7: list[float]) -> ttr.Curve:
+        finals = {"walker_7_main": returns.Final(np.array(walker_7))}
+        return ttr.Curve(name, (), (), finals["walker_7_main"], finals)
+
+    original = curve(ttr.ORIGINAL, [300.0, 260.0, 290.0, 310.0])
+    lines = ttr.stranded_table(original, [curve("fast", [44.0, 50.0, 270.0, 320.0])])
+    assert "| fast | 2 of 4 | 2 of 4 |" in lines, "the two seeds that never walk; 270 is above 260"
+
+
+def test_the_fast_candidate_at_the_small_scale_is_the_fast_preset_a_user_runs(tmp_path):
+    """The preset's own sizes and hyperparameters are the ones its time to return was measured with."""
+    settings = runs.SETTINGS["small"]
+    measured = ttr.candidate_run(tmp_path, settings, "walker", "fast").config
+    run_fields = ("env", "steps", "seeds", "run_dir", "log_interval", "checkpoint_interval")
+    assert (
+        dataclasses.replace(measured, **{f: getattr(PRESETS["fast"], f) for f in run_fields})
+        == PRESETS["fast"]
+    )
 
 
 def test_an_unknown_candidate_is_refused(tmp_path, capsys):

@@ -650,3 +650,15 @@ def test_init_from_refuses_networks_that_do_not_fit_naming_both_runs(trained_run
         )
     with pytest.raises(ConfigError, match="--split test: hopper has no test bodies"):
         TrainConfig(env="hopper", split="test")
+
+
+@pytest.mark.parametrize(
+    ("steps", "log_interval", "every"),
+    [(20_000, 0, 1_000), (10_000_000, 0, 10_000), (30, 0, 1), (20_000, 300, 300)],
+    ids=["short-run-20-rows", "long-run-capped", "tiny-run", "given"],
+)
+def test_the_default_log_interval_gives_a_short_run_twenty_metric_rows(steps, log_interval, every):
+    config = TrainConfig(steps=steps, log_interval=log_interval)
+    assert config.metrics_interval() == every
+    with pytest.raises(ConfigError, match=r"--log-interval must be 0"):
+        dataclasses.replace(config, log_interval=-1)

@@ -12,7 +12,7 @@ One run measures, each configuration in a fresh process (its compilation and mem
    them cold anywhere).
 3. TD3 update throughput of the paper-sized SWAT (Table 1) on Animal-Walkers and CWHH++: batch 100 per
    body, all bodies in one vmapped update (:func:`update_benchmark.vmapped_throughput`).
-4. Time to return: ``train_presets`` trained on ``train_set`` (paper sizes, ``train_seeds`` seeds in one
+4. Time to return: ``train_presets`` trained on ``train_set`` (each preset's network, ``train_seeds`` seeds in one
    program) for ``train_seconds`` each, in a subprocess stopped with Ctrl-C's signal (the run checkpoints
    and exits): seconds to the first metrics row (start-up and compilation), environment steps per second
    per seed, and the mean return over seeds of the training episodes against wall clock, row by row.
@@ -103,7 +103,7 @@ class ReportSettings:
     train_seconds: float = 90.0
     """Wall seconds of each training run, start-up included (a run goes on to its first metrics row)."""
     train_flags: tuple[str, ...] = ()
-    """More ``swat_jax.train`` flags of every training run (none: the preset's paper-sized network)."""
+    """More ``swat_jax.train`` flags of every training run (none: each preset's own network, paper-sized for paper, width 32 for fast)."""
 
 
 FULL = ReportSettings(

@@ -9,7 +9,7 @@ of TD3 update work (updates x batch / s), and both as ratios to the first preset
 the same run. ``--collection`` adds the paper preset's collection alone.
 
     python -m experiments.benchmarks.presets [--env hopper] [--algo swat] [--iterations 3]
-        [--capacity 100000] [--fast-copies 16 64] [--fast-updates 1 64] [--physics auto|c|jax]
+        [--capacity 100000] [--fast-copies 16 64] [--fast-updates 1 64] [--fast-batches 50 100] [--physics auto|c|jax]
         [--seeds 1] [--sizes 32 1 64] [--presets paper fast] [--collection]
 
 ``--fast-updates 1`` with the fast preset's row splits its iteration into stepping (and replay) and
@@ -88,6 +88,15 @@ def measure(
     )
 
 
+def update_ms(run: Measurement, stepping: Measurement | None) -> str:
+    """Milliseconds per update of ``run`` (a fast row): its iteration less ``stepping``'s (the same iteration
+    with one update) over the updates added; "-" with no such row or for other presets."""
+    if stepping is None or run.config.preset != "fast" or run.config.iteration.updates <= 1:
+        return "-"
+    seconds = run.seconds_per_iteration - stepping.seconds_per_iteration
+    return f"{1000 * seconds / (run.config.iteration.updates - 1):.1f}"
+
+
 @dataclasses.dataclass(frozen=True)
 class Options:
     """End-to-end training throughput of the presets: environment steps and update work per second of wall clock."""
@@ -106,12 +115,14 @@ class Options:
     """Also time fast with these copy counts."""
     fast_updates: tuple[int, ...] = ()
     """Also time fast with these updates per iteration."""
+    fast_batches: tuple[int, ...] = ()
+    """Also time fast with these batches per body (with ``--fast-updates 1``, the milliseconds per update at each)."""
     physics: Physics = "auto"
     """Every run's physics."""
     seeds: int = 1
     """Seeds in each program."""
     sizes: tuple[int, int, int] | None = None
-    """Network sizes: WIDTH LAYERS FEEDFORWARD (None: the algorithm's, paper-sized)."""
+    """Network sizes of every preset: WIDTH LAYERS FEEDFORWARD (None: the algorithm's, paper-sized, also for fast, whose own network is smaller)."""
     collection: bool = False
     """Also time the paper preset's collection alone (no rounds, 1 update per body): with the paper row it splits an iteration into stepping the bodies and updating."""
 
@@ -125,7 +136,7 @@ def main() -> None:
         iteration = dataclasses.replace(
             base.iteration, random_steps=0, capacity=args.capacity, **changes.pop("iteration", {})
         )
-        sizes = dict(zip(("width", "layers", "feedforward"), args.sizes or (), strict=False))
+        sizes = dict(zip(("width", "layers", "feedforward"), args.sizes or (None,) * 3, strict=True))
         stale = base.envs.stale_kinematics and args.physics != "warp"
         envs = dataclasses.replace(
             base.envs, physics=args.physics, stale_kinematics=stale, **changes.pop("envs", {})
@@ -138,6 +149,10 @@ def main() -> None:
     runs = [(preset, configured(preset)) for preset in args.presets]
     runs += [(f"fast, {n} copies", configured("fast", envs={"copies": n})) for n in args.fast_copies]
     runs += [(f"fast, {n} updates", configured("fast", iteration={"updates": n})) for n in args.fast_updates]
+    runs += [
+        (f"fast, batch {n}", configured("fast", td3=dataclasses.replace(PRESETS["fast"].td3, batch_size=n)))
+        for n in args.fast_batches
+    ]
     if args.collection:
         paper = configured("paper")
         collection = dataclasses.replace(paper.iteration, rounds=False, updates=1)
@@ -153,6 +168,7 @@ def main() -> None:
         )
 
     paper = results[0]
+    stepping = next((r for r in results if r.label == "fast, 1 updates"), None)
     device = jax.devices()[0]
     print(
         f"\n{args.env}, {args.algo}, physics {args.physics}, {args.seeds} seeds; {device.platform}: "
@@ -161,9 +177,9 @@ def main() -> None:
     print(
         "\n| preset | copies | chunk | updates / iteration | batch per body | compile (s) "
         "| env steps/s | stored per counted | s per iteration | update transitions/s | env steps/s vs paper "
-        "| transitions/s vs paper |"
+        "| transitions/s vs paper | ms per update |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         c = r.config
         print(
@@ -171,7 +187,7 @@ def main() -> None:
             f"| {r.compile_seconds:.0f} | {r.env_steps_per_second:,.1f} | {r.stored_per_counted:.2f} "
             f"| {r.seconds_per_iteration:.1f} | {r.transitions_per_second:,.0f} "
             f"| {r.env_steps_per_second / paper.env_steps_per_second:.2f} "
-            f"| {r.transitions_per_second / paper.transitions_per_second:.2f} |"
+            f"| {r.transitions_per_second / paper.transitions_per_second:.2f} | {update_ms(r, stepping)} |"
         )
 
 

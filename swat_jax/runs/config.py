@@ -14,8 +14,10 @@ TrainConfig's defaults:
   left (:attr:`~swat_jax.td3.iteration.IterationConfig.round_updates`).
 - ``intended``: the ``paper`` preset with every quirk of the original code fixed (:func:`fixed`): the
   paper's intended method on the original's schedule, updated after every chunk.
-- ``fast``: many copies per task and the ``all_tasks`` schedule (each update one Adam step on a batch
-  from every task), with a larger batch and fewer updates per environment step, for wall clock.
+- ``fast``: the recipe measured fastest to the original trainer's final return on a 2-core CPU
+  (docs/training.md): four copies per task and the ``all_tasks`` schedule (each update one Adam step on a
+  small batch from every task), 3-step returns, and the sizes and hyperparameters it was measured at (a
+  width-32 one-layer network, learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body).
 
 Budget convention (the benchmark's): ``steps`` counts environment steps summed over all bodies of the set,
 so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
@@ -179,7 +181,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = host_only("paper")
-    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (paper with the quirks fixed, 4 copies of chunk 16, 128 all_tasks updates of batch 100 per body per iteration: chosen by time to return on a CPU, docs/training.md)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
     seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -196,8 +198,8 @@ class TrainConfig:
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
     limb_buckets: int = 3
     """With --iteration.schedule all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
-    log_interval: int = host_only(10_000)
-    """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar)."""
+    log_interval: int = host_only(0)
+    """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar); 0: a twentieth of --steps, at most 10,000 (20 points on a short run's curve, one per 10,000 steps on a long one)."""
     eval_interval: int = host_only(0)
     """Environment steps (all bodies) between deterministic evaluations of the policy on the train bodies, logged as eval/* columns at the next metrics row; 0 turns them off."""
     eval_episodes: int = 10
@@ -243,8 +245,12 @@ class TrainConfig:
             raise ConfigError(f"algo must be one of {', '.join(NAMED_VARIANTS)}, got {self.algo!r}")
         if self.preset not in PRESET_NAMES:
             raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
-        for name in ("steps", "seeds", "log_interval", "checkpoint_interval", "keep_checkpoints"):
+        for name in ("steps", "seeds", "checkpoint_interval", "keep_checkpoints"):
             require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
+        if self.log_interval < 0:
+            raise ConfigError(
+                f"--log-interval must be 0 (a twentieth of --steps) or more, got {self.log_interval}"
+            )
         require_positive("--eval-episodes", self.eval_episodes)
         require_positive("--limb-buckets", self.limb_buckets)
         if self.eval_interval < 0:
@@ -288,6 +294,13 @@ class TrainConfig:
                 )
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
+        require_positive("--td3.n-step", self.td3.n_step)
+        if self.td3.n_step > 1 and self.iteration.schedule != "all_tasks":
+            raise ConfigError(
+                f"--td3.n-step {self.td3.n_step} sums a copy's consecutive steps from its own replay rows, which "
+                "the original schedule's lock-step rounds do not keep; add --iteration.schedule all_tasks "
+                "--iteration.no-rounds or give --td3.n-step 1"
+            )
         if self.td3.atoms and (self.td3.atoms < 2 or self.algo == "smp"):
             raise ConfigError(
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
@@ -339,6 +352,11 @@ class TrainConfig:
         """Environment steps, summed over bodies, of one iteration."""
         return num_bodies * self.envs.copies * self.iteration.chunk
 
+    def metrics_interval(self) -> int:
+        """Environment steps between metric rows: ``log_interval``, or with 0 a twentieth of ``steps``, at
+        most 10,000."""
+        return self.log_interval or min(10_000, max(1, self.steps // 20))
+
     def iterations(self, num_bodies: int) -> int:
         """Iterations of the whole run: ``steps`` rounded up to whole iterations (at least one)."""
         return max(1, math.ceil(self.steps / self.steps_per_iteration(num_bodies)))
@@ -381,11 +399,19 @@ PRESETS: dict[str, TrainConfig] = {
         fixed(PAPER),
         preset="fast",
         envs=dataclasses.replace(fixed(PAPER).envs, copies=4),
-        network=dataclasses.replace(fixed(PAPER).network, initialisation="flax"),
-        iteration=dataclasses.replace(
-            fixed(PAPER).iteration, chunk=16, updates=256, schedule="all_tasks", rounds=False
+        network=dataclasses.replace(
+            fixed(PAPER).network, width=32, heads=2, layers=1, feedforward=64, initialisation="flax"
         ),
-        td3=dataclasses.replace(PAPER.td3, batch_size=25),
+        iteration=dataclasses.replace(
+            fixed(PAPER).iteration,
+            chunk=16,
+            updates=256,
+            schedule="all_tasks",
+            rounds=False,
+            random_steps=1_000,
+            capacity=50_000,
+        ),
+        td3=dataclasses.replace(PAPER.td3, batch_size=25, learning_rate=1e-3, n_step=3),
     ),
 }
 """The defaults each preset gives every flag: the paper's, and each other preset's differences from it."""

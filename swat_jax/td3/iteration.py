@@ -110,7 +110,13 @@ def init_train_state(
     seeds = axes.over_seeds(rngs.shape[0])
     learner_key, env_key, rng = seeds(lambda key: tuple(jax.random.split(key, 3)))(rngs)
     learner_state = seeds(learner.init, out_axes=axes.seed_axes(jax.eval_shape(learner.init, rngs[0])))
-    buffer = init_buffer(env.num_bodies, config.capacity, env.max_limbs, env.observation_features)
+    buffer = init_buffer(
+        env.num_bodies,
+        config.capacity,
+        env.max_limbs,
+        env.observation_features,
+        episode_ends=learner.config.n_step > 1,
+    )
     return TrainState(
         learner=learner_state(learner_key),
         buffer=seeds(lambda _: buffer, out_axes=axes.seed_axes(buffer))(learner_key),
@@ -177,7 +183,7 @@ def make_train_iteration(
         inserted = over_seeds(insert, in_axes=(buffer_axes, 0, 0 if waits else None), out_axes=buffer_axes)
         explored = over_seeds(explore, in_axes=(0, 0, 0 if config.rounds else None, 0))
         update_phase = make_update_phase(
-            structure, learner, config.schedule, slots, seeds, config.rounds, wait_for_batch=not waits
+            structure, learner, config.schedule, slots, seeds, config.rounds, not waits, env.copies
         )
         learner_axes = axes.seed_axes(state.learner)
         observed = over_seeds(
@@ -208,6 +214,7 @@ def make_train_iteration(
                 reward=result.reward,
                 next_observation=next_observation,
                 terminated=result.terminated,
+                ended=result.terminated | result.truncated if learner.config.n_step > 1 else None,
             )
             counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
             if waits:

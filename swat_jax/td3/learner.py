@@ -13,7 +13,9 @@ the original SWAT code does (its ``TD3.py``), or with ``atoms`` a distribution o
     loss = mean over batch and real limbs of (Q1_l - y_l)^2 + (Q2_l - y_l)^2
 
 with a' the target policy's action plus clipped Gaussian noise (target policy smoothing), so truncated
-transitions bootstrap and terminated ones do not. SMP's critic sums its limbs' values into one Q per
+transitions bootstrap and terminated ones do not. With ``n_step`` N > 1, r is the sum of up to N discounted
+rewards of the copy's next steps and discount is discount^m for the m summed (cut at the episode's end;
+``Transitions.bootstrap``). SMP's critic sums its limbs' values into one Q per
 sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same formulas then hold with
 one "limb". The actor maximises the mean over limbs (SMP: the sum) of Q1 and is updated every
 ``policy_delay`` critic updates, or when the caller says so (``delayed``: the original schedule's phase);
@@ -70,6 +72,10 @@ class TD3Config:
     """Smallest atom of the distributional critic: returns below it count as it."""
     value_max: float = 400.0
     """Largest atom of the distributional critic: returns above it count as it."""
+    n_step: int = 1
+    """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the
+    N-step return of the replay's consecutive steps of a copy, cut at the episode's end, bootstrapping with
+    discount^N (needs the all_tasks schedule; :func:`swat_jax.td3.replay.sample_n_step`)."""
 
 
 @struct.dataclass
@@ -272,7 +278,8 @@ class Learner:
         noise = jnp.clip(self.config.policy_noise * noise, -self.config.noise_clip, self.config.noise_clip)
         next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
         next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
-        continues = self.config.discount * (1.0 - batch.terminated[:, None])
+        discount = self.config.discount if batch.bootstrap is None else batch.bootstrap[:, None]
+        continues = discount * (1.0 - batch.terminated[:, None])
         if self.config.atoms:
             errors = self._distributional_errors(
                 critic_params, target_critic_params, batch, next_action, structure, continues

@@ -36,15 +36,25 @@ class Transitions:
     """[T, B, L, F] float32, the state the action reached (before any automatic reset)."""
     terminated: jax.Array
     """[T, B] bool; a truncated episode is not terminated, so its TD target bootstraps."""
+    ended: jax.Array | None = None
+    """[T, B] bool, the episode ended with this step (terminated or truncated): stored for n-step returns
+    only (:func:`sample_n_step`), which stop summing there."""
+    bootstrap: jax.Array | None = None
+    """[T, B] float32, the discount of the TD target's bootstrap, discount^m for the m rewards summed into
+    ``reward``: set by :func:`sample_n_step` only (None: the learner's discount, one reward)."""
 
     def bucket(self, bucket: LimbBucket) -> Transitions:
         """The bucket's tasks, cut to its limb count: [len(tasks), B, limbs, ...]."""
+        per_sample = [
+            None if leaf is None else bucket_slice(leaf, bucket, ())
+            for leaf in (self.reward, self.terminated, self.ended, self.bootstrap)
+        ]
         return Transitions(
-            observation=bucket_slice(self.observation, bucket, (2,)),
-            action=bucket_slice(self.action, bucket, (2,)),
-            reward=bucket_slice(self.reward, bucket, ()),
-            next_observation=bucket_slice(self.next_observation, bucket, (2,)),
-            terminated=bucket_slice(self.terminated, bucket, ()),
+            bucket_slice(self.observation, bucket, (2,)),
+            bucket_slice(self.action, bucket, (2,)),
+            per_sample[0],
+            bucket_slice(self.next_observation, bucket, (2,)),
+            *per_sample[1:],
         )
 
 
@@ -117,8 +127,11 @@ def check_buffer_fits(
     return report
 
 
-def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> ReplayBuffer:
-    """An empty buffer (all zeros; every array its own buffer, so a jitted step may donate them)."""
+def init_buffer(
+    tasks: int, capacity: int, max_limbs: int, features: int, episode_ends: bool = False
+) -> ReplayBuffer:
+    """An empty buffer (all zeros; every array its own buffer, so a jitted step may donate them); with
+    ``episode_ends`` it stores :attr:`Transitions.ended` too (n-step returns)."""
     observation_shape = (tasks, capacity, max_limbs, features)
     return ReplayBuffer(
         data=Transitions(
@@ -127,6 +140,7 @@ def init_buffer(tasks: int, capacity: int, max_limbs: int, features: int) -> Rep
             reward=jnp.zeros((tasks, capacity), jnp.float32),
             next_observation=jnp.zeros(observation_shape, jnp.float32),
             terminated=jnp.zeros((tasks, capacity), bool),
+            ended=jnp.zeros((tasks, capacity), bool) if episode_ends else None,
         ),
         position=jnp.zeros((), jnp.int32),
         size=jnp.zeros((), jnp.int32),
@@ -189,6 +203,55 @@ def insert(buffer: ReplayBuffer, batch: Transitions, write: jax.Array | None = N
 
 def sample(buffer: ReplayBuffer, rng: jax.Array, batch_size: int) -> Transitions:
     """``batch_size`` rows per task, uniformly and independently per task from the filled rows."""
+    return _gathered(buffer.data, _sampled_rows(buffer, rng, batch_size))
+
+
+def sample_n_step(
+    buffer: ReplayBuffer, rng: jax.Array, batch_size: int, steps: int, discount: float, stride: int
+) -> Transitions:
+    """``batch_size`` rows per task as :func:`sample` draws them, each with up to ``steps`` rewards of its
+    copy's episode summed: the n-step return (Sutton and Barto 2018, section 7.1; FastTD3's and MR.Q's TD3).
+
+    An insert writes one row per copy at consecutive positions, so the next step of the copy of row r is
+    row (r + ``stride``) mod C, ``stride`` the copies per insert. A sampled row's return is
+    sum_{k < m} discount^k r_{t+k} over the m <= ``steps`` rows up to and including the first whose episode
+    ended (:attr:`Transitions.ended`) or the newest row of its copy; its ``next_observation`` and
+    ``terminated`` are that last row's and its ``bootstrap`` is discount^m. With ``steps`` 1 every field
+    equals :func:`sample`'s and ``bootstrap`` is ``discount``.
+
+    Returns:
+        [T, batch_size, ...] transitions with :attr:`Transitions.bootstrap` [T, batch_size]; no ``ended``.
+    """
+    data = buffer.data
+    rows = _sampled_rows(buffer, rng, batch_size)
+    # Rows written after each sampled row: the ring's newest row is position - 1.
+    newer = (buffer.position - 1 - rows) % buffer.capacity
+    first = _gathered(data, rows)
+    reward, last, scale, alive = first.reward, rows, jnp.full(rows.shape, discount, jnp.float32), ~first.ended
+    for k in range(1, steps):
+        taken = alive & (k * stride <= newer)
+        row = (rows + k * stride) % buffer.capacity
+        later = _gathered(Transitions(None, None, data.reward, None, None, data.ended), row)
+        reward = reward + jnp.where(taken, scale * later.reward, 0.0)
+        last = jnp.where(taken, row, last)
+        scale = jnp.where(taken, scale * discount, scale)
+        alive = taken & ~later.ended
+    end = _gathered(Transitions(None, None, None, data.next_observation, data.terminated), last)
+    return first.replace(
+        reward=reward,
+        next_observation=end.next_observation,
+        terminated=end.terminated,
+        ended=None,
+        bootstrap=scale,
+    )
+
+
+def _sampled_rows(buffer: ReplayBuffer, rng: jax.Array, batch_size: int) -> jax.Array:
+    """[T, batch_size] int32 rows drawn uniformly and independently per task from the filled ones."""
     tasks = buffer.data.reward.shape[0]
-    rows = jax.random.randint(rng, (tasks, batch_size), 0, jnp.maximum(buffer.size, 1))
-    return jax.tree_util.tree_map(lambda stored: jax.vmap(lambda s, r: s[r])(stored, rows), buffer.data)
+    return jax.random.randint(rng, (tasks, batch_size), 0, jnp.maximum(buffer.size, 1))
+
+
+def _gathered(data: Transitions, rows: jax.Array) -> Transitions:
+    """Each task's ``rows`` [T, B] of ``data`` [T, C, ...] (its None fields stay None)."""
+    return jax.tree_util.tree_map(lambda stored: jax.vmap(lambda s, r: s[r])(stored, rows), data)

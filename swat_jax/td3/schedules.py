@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from swat_jax import axes
 from swat_jax.morphology import StructureBatch
 from swat_jax.td3.learner import Learner, LearnerState
-from swat_jax.td3.replay import ReplayBuffer, Transitions, sample
+from swat_jax.td3.replay import ReplayBuffer, Transitions, sample, sample_n_step
 
 Schedule = Literal["original", "all_tasks"]
 SCHEDULES: tuple[str, ...] = typing.get_args(Schedule)
@@ -51,6 +51,9 @@ class UpdateStep:
     wait_for_batch: bool = True
     """Update only once the buffer holds a batch (False: from its first row, sampling with replacement, as
     the original's rounds do)."""
+    stride: int = 1
+    """Rows an insert writes per task (the copies per body): a copy's next step is this many rows on, for
+    n-step returns (:func:`swat_jax.td3.replay.sample_n_step`)."""
 
     def delayed(self, it: jax.Array) -> jax.Array:
         """[] bool: update ``it`` of a task's run takes the actor and target step (the original's phase)."""
@@ -62,12 +65,19 @@ class UpdateStep:
 
         def update(state: LearnerState, buffer: ReplayBuffer, key: jax.Array) -> Updated:
             sample_key, noise_key = jax.random.split(key)
-            batch = sample(buffer, sample_key, self.learner.config.batch_size)
+            batch = self._sample(buffer, sample_key)
             return self._once_filled(
                 filled, lambda s: self.learner.update(s, batch, self.structure, noise_key), state
             )
 
         return self._over_seeds(update, state, buffer)(state, buffer, keys)
+
+    def _sample(self, buffer: ReplayBuffer, key: jax.Array) -> Transitions:
+        """A batch [K, B] from every task's ring: one-step transitions, or with ``n_step`` > 1 n-step ones."""
+        config = self.learner.config
+        if config.n_step == 1:
+            return sample(buffer, key, config.batch_size)
+        return sample_n_step(buffer, key, config.batch_size, config.n_step, config.discount, self.stride)
 
     def task(
         self,
@@ -184,6 +194,7 @@ def make_update_phase(
     seeds: int,
     counted: bool = False,
     wait_for_batch: bool = True,
+    copies: int = 1,
 ) -> UpdatePhase:
     """The TD3 updates of one iteration of every seed, ``update_phase(learner_state, buffer, rng [S],
     counts=None)``, in the order of ``schedule``.
@@ -196,13 +207,16 @@ def make_update_phase(
         counted: lock-step rounds (``original`` only): ``update_phase`` takes ``counts`` [S] int32, the
             updates of each of a seed's tasks (:func:`original_counted`).
         wait_for_batch: :attr:`UpdateStep.wait_for_batch`.
+        copies: the rows an insert writes per task (:attr:`UpdateStep.stride`).
 
     losses: ``critic_loss`` and ``actor_loss`` [S, K x updates] (task after task) or [S, updates], in the
     order the updates ran.
     """
     if counted and schedule != "original":
         raise ValueError("update counts (lock-step rounds) need the original schedule")
-    step = UpdateStep(learner, jax.tree.map(jnp.asarray, structure), seeds, wait_for_batch)
+    if learner.config.n_step > 1 and schedule != "all_tasks":
+        raise ValueError("n-step returns need the all_tasks schedule")
+    step = UpdateStep(learner, jax.tree.map(jnp.asarray, structure), seeds, wait_for_batch, copies)
     shape = (structure.limb_mask.shape[0], updates) if schedule == "original" else (updates,)
     run = {"all_tasks": all_tasks, "original": original_counted if counted else original}[schedule]
 
