@@ -73,9 +73,7 @@ class TD3Config:
     value_max: float = 400.0
     """Largest atom of the distributional critic: returns above it count as it."""
     n_step: int = 1
-    """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the
-    N-step return of the replay's consecutive steps of a copy, cut at the episode's end, bootstrapping with
-    discount^N (needs the all_tasks schedule; :func:`swat_jax.td3.replay.sample_n_step`)."""
+    """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
 
 
 @struct.dataclass
