@@ -226,7 +226,7 @@ def sample_n_step(
     rows = _sampled_rows(buffer, rng, batch_size)
     # Rows written after each sampled row: the ring's newest row is position - 1.
     newer = (buffer.position - 1 - rows) % buffer.capacity
-    first = _gathered(data, rows)
+    first = _gathered(data.replace(next_observation=None, terminated=None), rows)  # the last row's, below
     reward, last, scale, alive = first.reward, rows, jnp.full(rows.shape, discount, jnp.float32), ~first.ended
     for k in range(1, steps):
         taken = alive & (k * stride <= newer)
