@@ -48,6 +48,8 @@ class BodyEvaluation:
     """[seeds, episodes] int32 episode lengths in environment steps."""
     qpos: np.ndarray | None = None
     """[length of episode 0, nq] joint positions of the first seed's first episode, when recorded."""
+    targets: np.ndarray | None = None
+    """[length of episode 0, 2] a 3D body's target at each of those poses, when recorded."""
 
     def seed_summary(self, index: int) -> dict[str, float]:
         """Mean and standard deviation over episodes of one seed's returns and lengths."""
@@ -120,8 +122,11 @@ def evaluate(
     for k, name in enumerate(env.body_names):
         lengths = np.asarray(result.lengths[:, k], np.int32)
         qpos = np.asarray(result.qpos[k])[: lengths[0, 0]] if record else None
+        targets = (
+            np.asarray(result.targets[k])[: lengths[0, 0]] if record and result.targets[k].size else None
+        )
         evaluations.append(
-            BodyEvaluation(name, seeds, np.asarray(result.returns[:, k], np.float32), lengths, qpos)
+            BodyEvaluation(name, seeds, np.asarray(result.returns[:, k], np.float32), lengths, qpos, targets)
         )
     return evaluations
 
@@ -284,7 +289,9 @@ def evaluate_run(run_dir: str | Path, options: EvalOptions = EvalOptions()) -> R
 
         options.video.mkdir(parents=True, exist_ok=True)
         for body, result in zip(bodies, results, strict=True):
-            path = render_rollout(body, result.qpos, options.video / f"{result.body}.mp4")
+            path = render_rollout(
+                body, result.qpos, options.video / f"{result.body}.mp4", targets=result.targets
+            )
             print(f"wrote {path}", file=sys.stderr)
     return RunEvaluation(run_dir, policy, results)
 

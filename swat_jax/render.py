@@ -1,8 +1,9 @@
 """Videos of a body moving: roll out an environment, draw each state off-screen, write MP4 or GIF.
 
 ``rollout`` simulates one body under random or zero actions on MJX, ``render_frames`` draws a sequence of
-poses with a side camera that follows the torso, ``write_video`` writes the frames, and ``render_rollout``
-does both with the body's own frame rate. From the shell::
+poses with a side camera that follows the torso (and, for a 3D body, an arrow on the floor from the torso
+toward its target, and the target itself when it is near), ``write_video`` writes the frames, and
+``render_rollout`` does both with the body's own frame rate. From the shell::
 
     python -m swat_jax.render hopper_3 -o hopper.mp4 --steps 200
 
@@ -81,23 +82,28 @@ def rollout(env: BodyEnv, steps: int, *, seed: int = 0, policy: str = "random") 
     def episode(key: jax.Array) -> EnvState:
         reset_key, action_key = jax.random.split(key)
         first = env.reset(reset_key)
-        _, later = jax.lax.scan(advance, first, _actions(action_key, steps, env.num_limbs, policy))
+        _, later = jax.lax.scan(advance, first, _actions(action_key, steps, env.action_shape, policy))
         return jax.tree.map(lambda start, rest: jnp.concatenate([start[None], rest]), first, later)
 
     return jax.jit(episode)(jax.random.key(seed))
 
 
-def _actions(key: jax.Array, steps: int, num_limbs: int, policy: str) -> jax.Array:
-    """[steps, num_limbs] float32 actions of ``policy``."""
+def _actions(key: jax.Array, steps: int, shape: tuple[int, ...], policy: str) -> jax.Array:
+    """[steps, *shape] float32 actions of ``policy`` (``shape``: the environment's action shape)."""
     if policy == "zero":
-        return jnp.zeros((steps, num_limbs), jnp.float32)
-    return jax.random.uniform(key, (steps, num_limbs), jnp.float32, minval=-1.0, maxval=1.0)
+        return jnp.zeros((steps, *shape), jnp.float32)
+    return jax.random.uniform(key, (steps, *shape), jnp.float32, minval=-1.0, maxval=1.0)
 
 
 def render_frames(
-    body: Morphology | str | Path, qpos: Any, *, width: int = 480, height: int = 360
+    body: Morphology | str | Path,
+    qpos: Any,
+    *,
+    width: int = 480,
+    height: int = 360,
+    targets: Any = None,
 ) -> np.ndarray:
-    """Draw a sequence of poses from the side, the camera following the torso along x.
+    """Draw a sequence of poses from the side, the camera following the torso along x (and y).
 
     The camera looks at the torso's x at the torso's height in the first frame, so the floor stays in
     view when the body falls or jumps. All frames share one OpenGL context.
@@ -108,6 +114,8 @@ def render_frames(
             shape, such as the stacked ``EnvState`` returned by :func:`rollout`.
         width: image width in pixels.
         height: image height in pixels.
+        targets: [T, 2] a 3D body's target per frame (:func:`draw_target`); default: the rollout's
+            ``.target``, if it has one.
 
     Returns:
         [T, height, width, 3] uint8 RGB frames, top row first.
@@ -120,6 +128,9 @@ def render_frames(
     morphology = _morphology(body)
     model = compile_model(morphology)
     positions = _positions(qpos, morphology.name, model.nq)
+    if targets is None:
+        targets = getattr(qpos, "target", None)
+    targets = None if targets is None else np.asarray(targets, np.float64).reshape(len(positions), 2)
     data = mujoco.MjData(model)
     scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
     option = mujoco.MjvOption()
@@ -129,8 +140,41 @@ def render_frames(
         for index, position in enumerate(positions):
             camera = following_camera(_pose(model, data, position), camera_height)
             mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+            if targets is not None:
+                draw_target(scene, data.xpos[TORSO, :2], targets[index])
             frames[index] = draw(scene, context, width, height)
     return frames
+
+
+TARGET_RGBA = np.array([0.9, 0.2, 0.2, 1.0], np.float32)
+TARGET_ARROW = 1.0
+"""Metres of the arrow toward the target (shorter when the target is nearer)."""
+TARGET_SHOWN = 30.0
+"""Targets nearer than this (metres) are drawn as a marker besides the arrow."""
+
+
+def draw_target(scene: mujoco.MjvScene, torso: np.ndarray, target: np.ndarray) -> None:
+    """Add to ``scene`` an arrow on the floor from the torso's (x, y) toward ``target`` (x, y), and a marker
+    at the target when it is nearer than :data:`TARGET_SHOWN` (a 10 km target is a direction)."""
+    offset = np.asarray(target, np.float64) - torso
+    distance = float(np.linalg.norm(offset))
+    if distance == 0 or scene.ngeom + 2 > scene.maxgeom:
+        return
+    start = np.array([torso[0], torso[1], 0.02])
+    end = start + np.append(offset / distance * min(distance, TARGET_ARROW), 0.0)
+    arrow = scene.geoms[scene.ngeom]
+    mujoco.mjv_initGeom(
+        arrow, mujoco.mjtGeom.mjGEOM_ARROW, np.zeros(3), np.zeros(3), np.eye(3).ravel(), TARGET_RGBA
+    )
+    mujoco.mjv_connector(arrow, mujoco.mjtGeom.mjGEOM_ARROW, 0.03, start, end)
+    scene.ngeom += 1
+    if distance < TARGET_SHOWN:
+        marker = scene.geoms[scene.ngeom]
+        position = np.array([target[0], target[1], 0.1])
+        mujoco.mjv_initGeom(
+            marker, mujoco.mjtGeom.mjGEOM_SPHERE, np.full(3, 0.1), position, np.eye(3).ravel(), TARGET_RGBA
+        )
+        scene.ngeom += 1
 
 
 def _morphology(body: Morphology | str | Path) -> Morphology:
@@ -245,12 +289,14 @@ def render_rollout(
     fps: float | None = None,
     width: int = 480,
     height: int = 360,
+    targets: Any = None,
 ) -> Path:
     """Render a rollout of ``body`` (see :func:`render_frames`) and write it as a video.
 
     Args:
         body: a loaded body, a benchmark body name or the path of an MJCF file.
         rollout: [T, nq] joint positions or anything with ``.data.qpos`` of that shape.
+        targets: [T, 2] a 3D body's target per frame (default: the rollout's, if it has them).
         path: the .mp4 or .gif file to write.
         fps: playback frame rate; default :func:`default_fps`, real time except for fast GIFs.
         width: frame width in pixels.
@@ -261,7 +307,7 @@ def render_rollout(
     """
     path = video_path(path)
     morphology = _morphology(body)
-    frames = render_frames(morphology, rollout, width=width, height=height)
+    frames = render_frames(morphology, rollout, width=width, height=height, targets=targets)
     write_video(frames, path, fps=default_fps(morphology, path) if fps is None else fps)
     return path
 

@@ -272,6 +272,7 @@ def train(
             flag=flag,
             flag_rows=flag_rows,
             why=_replay_rows_why(config, experiment.replay_rows, env.num_bodies),
+            motors=env.motors_per_limb,
         )
     )
     run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)

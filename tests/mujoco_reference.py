@@ -33,9 +33,9 @@ def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
             one_hot[body.limb_types[limb]] = 1
         joint = np.zeros(3)
         if limb > 0:
-            low, high = body.joint_ranges[limb]
+            ((low, high),) = body.joint_ranges[limb]
             address = model.jnt_qposadr[
-                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, body.joint_names[limb])
+                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, body.joint_names[limb][0])
             ]
             angle = np.degrees(data.qpos[address])
             joint = np.array([(angle - low) / (high - low), (180 + low) / 360, (180 + high) / 360])
@@ -45,7 +45,7 @@ def numpy_observation(body, model, data, torso_relative_x=True) -> np.ndarray:
 
 
 def mujoco_c_rollout(
-    model: mujoco.MjModel, start, actions: np.ndarray, motor_limbs: np.ndarray, frame_skip: int
+    model: mujoco.MjModel, start, actions: np.ndarray, motor_actions: np.ndarray, frame_skip: int
 ) -> tuple[np.ndarray, np.ndarray, mujoco.MjData]:
     """Plain ``mujoco.mj_step`` from ``start``'s qpos and qvel (an MJX state's data) under ``actions``
     [steps, n] (per limb; the motors' clipped to [-1, 1]), ``frame_skip`` physics steps each: qpos
@@ -55,7 +55,7 @@ def mujoco_c_rollout(
     data.qpos[:], data.qvel[:] = start.qpos, start.qvel
     qpos, qvel = [], []
     for action in actions:
-        data.ctrl[:] = np.clip(action[motor_limbs], -1, 1)
+        data.ctrl[:] = np.clip(action[motor_actions], -1, 1)
         for _ in range(frame_skip):
             mujoco.mj_step(model, data)
         qpos.append(data.qpos.copy())
@@ -109,7 +109,7 @@ def mjx_and_c_rollouts(name: str, steps: int, seed: int = 0, physics: str = "jax
     start, states = jax.tree_util.tree_map(np.asarray, jax.jit(rollout)(jax.random.PRNGKey(seed), actions))
     model = env.mj_model
     qpos, qvel, data = mujoco_c_rollout(
-        model, start.data, actions, env.motor_limbs, env.morphology.frame_skip
+        model, start.data, actions, env.motor_actions, env.morphology.frame_skip
     )
     env_qpos, env_qvel = float64_state(states.data)
     return dict(
@@ -162,7 +162,7 @@ def mjx_and_c_variant_rollouts(
         model = mujoco.MjModel.from_xml_path(str(variant.path))
         start_j = jax.tree_util.tree_map(lambda x, j=j: x[j], start.data)
         qpos, qvel, data = mujoco_c_rollout(
-            model, start_j, actions[:, j], env.motor_limbs, variant.frame_skip
+            model, start_j, actions[:, j], env.motor_actions, variant.frame_skip
         )
         errors["qpos"] = max(errors["qpos"], float(np.abs(qpos - env_qpos[:, j]).max()))
         errors["qvel"] = max(errors["qvel"], float(np.abs(qvel - env_qvel[:, j]).max()))

@@ -10,6 +10,10 @@ to regenerate ``tests/data/reference_numbers.json`` from ``../shared/reference``
 
     python -m venv /tmp/mj233 && /tmp/mj233/bin/pip install mujoco==2.3.3
     /tmp/mj233/bin/python tests/reference_numbers.py ../shared/reference
+
+and ``tests/data/reference_numbers_3d.json`` from the 3D-SGRL benchmark's environments folder:
+
+    /tmp/mj233/bin/python tests/reference_numbers.py --3d PATH/TO/sgrl/src/environments
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import mujoco
 import numpy as np
 
 OUTPUT = Path(__file__).parent / "data" / "reference_numbers.json"
+OUTPUT_3D = Path(__file__).parent / "data" / "reference_numbers_3d.json"
 
 
 def _round(values, digits: int = 6) -> list[float]:
@@ -126,7 +131,27 @@ def extract(reference_dir: Path) -> dict[str, dict]:
     return summaries
 
 
+def extract_3d(environments: Path) -> dict[str, dict]:
+    """Summaries of the 3D-SGRL benchmark's bodies (its ``src/environments`` folder), the hopper foot fixed
+    as above; the ``_v2`` bodies have the same files and are not repeated."""
+    summaries = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        # The files include ../../misc/*.xml relative to their own folder.
+        shutil.copytree(environments.parent / "misc", Path(tmp) / "misc")
+        for source in sorted(environments.glob("*/*.xml")):
+            if "_v2" in source.parent.name or source.stem in summaries:
+                continue
+            target = Path(tmp) / "environments" / source.parent.name / source.name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(source.read_text().replace("0.13/2", "0.065"))
+            summaries[source.stem] = summarize(mujoco.MjModel.from_xml_path(str(target)))
+    return summaries
+
+
 if __name__ == "__main__":
-    summaries = extract(Path(sys.argv[1]))
-    OUTPUT.write_text(json.dumps(summaries, indent=None, separators=(",", ":"), sort_keys=True) + "\n")
-    print(f"wrote {len(summaries)} bodies to {OUTPUT}")
+    if sys.argv[1] == "--3d":
+        summaries, output = extract_3d(Path(sys.argv[2])), OUTPUT_3D
+    else:
+        summaries, output = extract(Path(sys.argv[1])), OUTPUT
+    output.write_text(json.dumps(summaries, indent=None, separators=(",", ":"), sort_keys=True) + "\n")
+    print(f"wrote {len(summaries)} bodies to {output}")

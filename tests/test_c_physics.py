@@ -70,7 +70,7 @@ def test_stale_kinematics_on_c_are_what_mj_step_leaves():
     model = env.mj_model
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = np.asarray(start.data.qpos), np.asarray(start.data.qvel)
-    data.ctrl[:] = np.clip(action[env.motor_limbs], -1, 1)
+    data.ctrl[:] = np.clip(action[env.motor_actions], -1, 1)
     for _ in range(env.morphology.frame_skip):
         mujoco.mj_step(model, data)
     mujoco.mj_comVel(model, data)

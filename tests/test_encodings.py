@@ -65,9 +65,9 @@ def make_body(name: str, parents: tuple[int, ...]) -> Morphology:
         limb_names=tuple(f"limb{i}" for i in range(n)),
         parents=parents,
         limb_types=tuple(i % 3 if i < 5 else -1 for i in range(n)),
-        joint_names=(None, *tuple(f"joint{i}" for i in range(1, n))),
-        joint_ranges=(None, *tuple((-10.0 * i, 5.0 * i) for i in range(1, n))),
-        limb_motors=(-1, *tuple(range(n - 1))),
+        joint_names=((), *tuple((f"joint{i}",) for i in range(1, n))),
+        joint_ranges=((), *tuple(((-10.0 * i, 5.0 * i),) for i in range(1, n))),
+        limb_motors=((), *tuple((i - 1,) for i in range(1, n))),
         timestep=0.002,
         integrator="RK4",
     )
@@ -325,8 +325,7 @@ def test_pad_structures_shapes_and_dtypes():
         "traversal_positions": ((k, width, 3), np.int32),
         "relations": ((k, width, width, 3), np.float32),
         "limb_types": ((k, width), np.int32),
-        "joint_ranges": ((k, width, 2), np.float32),
-        "limb_motors": ((k, width), np.int32),
+        "motor_mask": ((k, width, 1), np.bool_),
         "num_limbs": ((k,), np.int32),
     }
     for field, (shape, dtype) in expected.items():
@@ -349,10 +348,10 @@ def test_pad_structures_real_slices_match_unpadded_encodings(reference_inorder):
         )
         np.testing.assert_array_equal(batch.relations[row, :n, :n], relation_features(body.parents))
         np.testing.assert_array_equal(batch.limb_types[row, :n], body.limb_types)
-        np.testing.assert_array_equal(batch.joint_ranges[row, :n], body.joint_range_array())
-        np.testing.assert_array_equal(batch.limb_motors[row, :n], body.limb_motors)
-    assert batch.joint_ranges[1, 2].tolist() == [-20.0, 10.0]
-    assert batch.joint_ranges[1, 0].tolist() == [0.0, 0.0]
+        np.testing.assert_array_equal(batch.motor_mask[row, :n], body.motor_mask())
+    assert batch.motor_mask[1, :, 0].tolist() == [False] + [True] * (bodies[1].num_limbs - 1) + [False] * (
+        9 - bodies[1].num_limbs
+    ), "the torso and padding have no motor"
 
 
 def test_pad_structures_padding_values():
@@ -364,8 +363,7 @@ def test_pad_structures_padding_values():
         assert (batch.relations[row, n:, :] == 0).all()
         assert (batch.relations[row, :, n:] == 0).all()
         assert (batch.limb_types[row, n:] == -1).all()
-        assert (batch.joint_ranges[row, n:] == 0).all()
-        assert (batch.limb_motors[row, n:] == -1).all()
+        assert not batch.motor_mask[row, n:].any()
 
 
 def test_pad_structures_growing_max_limbs_keeps_real_entries():

@@ -53,7 +53,7 @@ def expect_error(path, *fragments, **kwargs):
 
 def test_the_template_is_valid(tmp_path):
     body = load(body_file(tmp_path))
-    assert body.limb_names == ("torso", "thigh") and body.limb_motors == (-1, 0)
+    assert body.limb_names == ("torso", "thigh") and body.limb_motors == ((), (0,))
 
 
 def test_missing_file(tmp_path):

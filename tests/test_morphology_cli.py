@@ -46,8 +46,8 @@ def test_show_json_hopper_3(capsys):
     assert shown["limbs"] == ["torso", "thigh", "foot"]
     assert shown["parents"] == [-1, 0, 1]
     assert shown["limb_types"] == [0, 1, 3]
-    assert shown["joint_ranges"] == [None, [-150, 0], [-45, 45]]
-    assert shown["motors"] == [-1, 0, 1]
+    assert shown["joint_ranges"] == [[], [[-150, 0]], [[-45, 45]]]
+    assert shown["motors"] == [[], [0], [1]]
     assert shown["traversals"] == {"pre": [0, 1, 2], "in": [2, 1, 0], "post": [2, 1, 0]}
     np.testing.assert_allclose(shown["relations"]["ppr"][0], [0.3953, 0.3913, 0.2134], atol=1e-4)
     np.testing.assert_allclose(shown["relations"]["spd"][0], [0, 1 / 3, 2 / 3], atol=1e-6)
@@ -60,7 +60,7 @@ def test_show_json_hopper_3(capsys):
 def test_show_json_ostrich_motors(capsys):
     shown = show_json(capsys, "nervenet_ostrich")
     assert len(shown["limbs"]) == 9
-    assert shown["motors"] == [-1, 6, 7, 0, 1, 2, 3, 4, 5]
+    assert shown["motors"] == [[], [6], [7], [0], [1], [2], [3], [4], [5]]
     for kind in ("laplacian", "spd", "ppr"):
         assert np.asarray(shown["relations"][kind]).shape == (9, 9)
     for kind in ("pre", "in", "post"):
@@ -86,8 +86,8 @@ def test_show_tables_hopper_3(capsys):
     assert main(["show", "hopper_3"]) == 0
     out = capsys.readouterr().out
     tree = out[out.index("Limb tree:") : out.index("Traversal")]
-    assert "thigh_joint [-150, 0] deg  motor 0" in tree
-    assert "foot_joint [-45, 45] deg  motor 1" in tree
+    assert "thigh_joint [-150, 0] deg motor 0" in tree
+    assert "foot_joint [-45, 45] deg motor 1" in tree
     assert "    foot " in tree, "foot is at depth 2 and indented below thigh"
     for relation in ("laplacian", "spd", "ppr"):
         assert f"Relation {relation}:" in out
@@ -104,7 +104,7 @@ def test_list_names_every_set_and_body(capsys):
     out = capsys.readouterr().out
     for name in SETS:
         assert name in out
-    assert len(benchmark_names()) == 43
+    assert len(benchmark_names()) == 95
     for body in benchmark_names():
         assert body in out
     assert "at most 13 limbs" in out, "animal_walkers' largest body, nervenet_fullcheetah, has 13 limbs"

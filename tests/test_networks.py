@@ -122,8 +122,7 @@ def structure_from_parents(parents: tuple[int, ...], max_limbs: int) -> Structur
         traversal_positions=np.pad(traversal_positions(parents), ((0, pad), (0, 0))),
         relations=np.pad(relation_features(parents), ((0, pad), (0, pad), (0, 0))),
         limb_types=np.full(max_limbs, -1, np.int32),
-        joint_ranges=np.zeros((max_limbs, 2), np.float32),
-        limb_motors=np.full(max_limbs, -1, np.int32),
+        motor_mask=np.zeros((max_limbs, 1), bool),
         num_limbs=np.int32(n),
     )
 

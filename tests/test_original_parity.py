@@ -414,7 +414,7 @@ def test_the_step_reads_stale_kinematics_as_the_original(body, physics):
         )
         state = start.replace(data=env.kinematics(data))
         action = np.zeros(env.num_limbs)
-        action[env.motor_limbs] = recorded(body, "action")[index]
+        action[env.motor_actions] = recorded(body, "action")[index]
         after = step(state, jnp.asarray(action, jnp.float32))
         expected = recorded(body, "obs")[index].reshape(env.num_limbs, -1)
         np.testing.assert_allclose(

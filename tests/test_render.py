@@ -175,3 +175,20 @@ def test_cli_without_rendering_exits_1_before_simulating(tmp_path, capsys, monke
     assert err.startswith("error: MUJOCO_GL='nonsense'") and "egl" in err
     assert main([BODY, "-o", str(tmp_path / "x.avi")]) == 2
     assert "use one of .mp4, .gif" in capsys.readouterr().err
+
+
+def test_a_3d_body_is_drawn_with_an_arrow_toward_its_target():
+    """A 3D rollout (MuJoCo C) draws, besides the body, a red arrow on the floor from the torso toward the
+    target, pointing the target's way; a near target (v2) also gets a marker."""
+    body = "3d_hopper_v2_3_shin"
+    states = rollout(BodyEnv(body, physics="c"), 2, seed=1)
+    with_target = render_frames(body, states, width=160, height=120)
+    plain = render_frames(body, np.asarray(states.data.qpos), width=160, height=120)
+    drawn = np.abs(with_target.astype(int) - plain.astype(int)).sum(axis=-1) > 60
+    assert drawn[0].sum() > 30, "the arrow and the marker are drawn"
+    red = (with_target[..., 0] > 150) & (with_target[..., 1] < 90) & (with_target[..., 2] < 90)
+    assert (drawn & red).sum() > 30, "in the target's red"
+    turned = np.asarray(states.target).copy()
+    turned[:] = 2 * np.asarray(states.data.qpos[:, :2]) - turned  # the target on the other side
+    other_way = render_frames(body, states, width=160, height=120, targets=turned)
+    assert np.abs(other_way.astype(int) - with_target.astype(int)).sum() > 0, "the arrow follows the target"

@@ -127,7 +127,7 @@ def make_rollout(env: MultiTaskEnv, steps: int) -> Callable[[MultiTaskState, jax
 
     The checksum sums every reward and observation, so no part of the step is optimized away.
     """
-    shape = (env.num_bodies, env.copies, env.max_limbs)
+    shape = (env.num_bodies, *env.action_shape)
 
     def one_step(carry: tuple[MultiTaskState, jax.Array], key: jax.Array) -> tuple[Any, None]:
         state, checksum = carry
@@ -178,7 +178,7 @@ def compile_worker(set_name: str, copies: int, physics: str = "jax") -> dict[str
     env = MultiTaskEnv(train_bodies(set_name), copies, physics=physics)
     built = time.perf_counter()
     state = jax.eval_shape(env.reset, jax.random.key(0))
-    action = jax.ShapeDtypeStruct((env.num_bodies, copies, env.max_limbs), jnp.float32)
+    action = jax.ShapeDtypeStruct((env.num_bodies, *env.action_shape), jnp.float32)
     start_trace = time.perf_counter()
     lowered = jax.jit(env.step).lower(state, action)
     traced = time.perf_counter()

@@ -150,8 +150,7 @@ def trimmed_structures(structures: StructureBatch, task: int, limbs: int) -> Str
                 "parents",
                 "traversal_positions",
                 "limb_types",
-                "joint_ranges",
-                "limb_motors",
+                "motor_mask",
             )
         },
         relations=one.relations[:, :limbs, :limbs],

@@ -2,8 +2,10 @@
 
 Exactly the modular-locomotion benchmark (README, "Environments"): frame skip 4, the per-limb observation of observation.py, the
 family's reward, termination and reset noise (swat_jax/morphology/families.py), and the 1000-step time
-limit reported as truncation, not termination. One action per limb; the torso's is ignored and the
-others reach their motors through the limb-to-motor map, clipped to [-1, 1].
+limit reported as truncation, not termination. One action per limb and hinge slot ([n] planar, [n, 3]
+in 3D); the torso's are ignored and the others reach their motors through the limb-to-motor map,
+clipped to [-1, 1]. A body of a 3D family (SGRL's benchmark) walks toward a target point
+(:mod:`swat_jax.envs.walk_to_target`), which its state carries.
 
 Two decisions beyond the benchmark text, both documented in the README:
 - Observations are computed from the kinematics of the state after the step, or, with
@@ -29,9 +31,26 @@ import numpy as np
 from flax import struct
 
 from swat_jax.envs.c_physics import EXPLOSION_SPEED, CData, CSimulator
-from swat_jax.envs.observation import ObservationLayout, limb_observation, observation_layout
+from swat_jax.envs.observation import (
+    ObservationLayout,
+    layout_joint_range,
+    limb_observation,
+    limb_observation_3d,
+    observation_layout,
+)
 from swat_jax.envs.physics import ModelFields, Physics, Simulator, differing_fields, resolve_physics
 from swat_jax.envs.quiet_mjx import mjx
+from swat_jax.envs.walk_to_target import (
+    FREE_QUATERNION,
+    heading_pitch_roll,
+    heading_quaternion,
+    heading_velocity,
+    new_target,
+    next_target,
+    progress,
+    raw_key,
+    tilt,
+)
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
 
@@ -42,7 +61,8 @@ PhysicsData = mjx.Data | CData
 (the same field names for what the environment reads)."""
 
 BOUNDED_STATE_LIMIT = 100.0
-"""abs(qpos[2:]) and abs(qvel) stay below this for bodies with ``Termination.bounded_state``."""
+"""abs(qpos) (the torso's position coordinates excepted) and abs(qvel) stay below this for bodies with
+``Termination.bounded_state``."""
 
 
 @struct.dataclass
@@ -64,7 +84,7 @@ class Variant:
 class EnvState:
     """State of one body's episode; every field gains leading axes when vmapped.
 
-    n = limbs, F = features per limb (19, or 21 for Animal-Walkers).
+    n = limbs, F = features per limb (19, 21 for Animal-Walkers, 41 in 3D).
     """
 
     data: PhysicsData
@@ -83,6 +103,10 @@ class EnvState:
     """[] int32 steps since reset."""
     variant: Variant | None = None
     """The body's variant this episode runs (kept across resets); None: the nominal body."""
+    target: jax.Array | None = None
+    """3D: [2] float32, the point (x, y) the body walks toward; None for a planar body."""
+    target_key: jax.Array | None = None
+    """3D: [2] uint32, the key that draws the next target once this one is reached."""
 
     @property
     def done(self) -> jax.Array:
@@ -139,13 +163,24 @@ class BodyEnv:
         models = [compile_model(variant) for variant in self.variants] or [compile_model(self.morphology)]
         self.mj_model: mujoco.MjModel = models[0]
         """The compiled model whose numbers are the program's constants: the body's, or its first variant's."""
+        self.task = self.morphology.family.target
+        """The 3D task (:class:`~swat_jax.morphology.types.Target`); None for a planar body."""
         self.simulator: Simulator | CSimulator = (
-            CSimulator(models, self.morphology.name)
+            CSimulator(models, self.morphology.name, joint_axes=self.task is not None)
             if physics == "c"
             else Simulator(self.mj_model, physics, worlds)
         )
         self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
-        self.motor_limbs = _motor_limbs(self.morphology, self.mj_model.nu)
+        self.motor_actions = _motor_actions(self.morphology, self.mj_model.nu)
+        self.gravity = np.asarray(self.mj_model.opt.gravity, np.float32)
+        self.height_limbs = np.array(
+            [
+                self.morphology.limb_names.index(name)
+                for name in self.morphology.family.termination.height_bodies
+                if name in self.morphology.limb_names
+            ],
+            np.int32,
+        )
         self._variant_table = self._stack_variants(models) if self.variants else None
         self.site_ids = np.array(
             [
@@ -163,6 +198,12 @@ class BodyEnv:
     def observation_features(self) -> int:
         """F, the number of values per limb."""
         return self.layout.features
+
+    @property
+    def action_shape(self) -> tuple[int, ...]:
+        """The shape of one action: (n,) planar, (n, M) in 3D."""
+        motors = self.morphology.motors_per_limb
+        return (self.num_limbs,) if motors == 1 else (self.num_limbs, motors)
 
     def variant_table(self) -> Variant:
         """Every variant's row, stacked: ``model`` leaves and ``joint_range`` with a leading [k] axis.
@@ -195,25 +236,48 @@ class BodyEnv:
         fields = {} if isinstance(self.simulator, CSimulator) else differing_fields(models)
         return Variant(
             model={path: jnp.asarray(values) for path, values in fields.items()},
-            joint_range=jnp.asarray(np.stack([variant.joint_range_array() for variant in self.variants])),
+            joint_range=jnp.asarray(np.stack([layout_joint_range(variant) for variant in self.variants])),
             index=jnp.arange(len(models), dtype=jnp.int32),
         )
 
     def reset(self, rng: jax.Array, variant: Variant | None = None) -> EnvState:
         """Start an episode at the initial pose plus the family's reset noise (of ``variant``: one row of
-        :meth:`variant_table`; None: the body, or with variants its first one)."""
-        return self.start(self.kinematics(self.initial_data(rng, variant), variant), variant)
+        :meth:`variant_table`; None: the body, or with variants its first one); in 3D facing a random
+        heading, with a target at a random direction."""
+        data, target = self.new_episode(rng, variant)
+        return self.start(self.kinematics(data, variant), variant, target)
+
+    def new_episode(
+        self, rng: jax.Array, variant: Variant | None = None
+    ) -> tuple[PhysicsData, tuple[jax.Array, jax.Array] | None]:
+        """What an episode starts from: :meth:`initial_data` (kinematics not computed) and, in 3D, its
+        target (:meth:`first_target`); None for a planar body."""
+        if self.task is None:
+            return self.initial_data(rng, variant), None
+        pose_key, target_key = jax.random.split(rng)
+        return self.initial_data(pose_key, variant), self.first_target(target_key)
+
+    def first_target(self, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """3D: (target [2], key [2] uint32) of a new episode: a point at a random direction from the origin,
+        and the key that draws the next."""
+        draw, key = jax.random.split(rng)
+        return new_target(self.task, draw, jnp.zeros(2, jnp.float32)).astype(jnp.float32), raw_key(key)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
-        """Apply ``action`` [n] (one value per limb, the torso's ignored) for ``frame_skip`` physics steps."""
+        """Apply ``action`` (:attr:`action_shape`: one value per limb and hinge slot, the torso's ignored) for
+        ``frame_skip`` physics steps."""
         data = self.simulate(state.data, action, state.variant)
         return self.finish_step(state, self.step_kinematics(data, state.variant))
 
     def initial_data(self, rng: jax.Array, variant: Variant | None = None) -> PhysicsData:
         """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
         noise = self.morphology.family.reset_noise
-        position_key, velocity_key = jax.random.split(rng)
         qpos0 = self.simulator.qpos0(self._row(variant))
+        if self.task is not None:
+            rng, heading_key = jax.random.split(rng)
+            heading = jax.random.uniform(heading_key, (), minval=-jnp.pi, maxval=jnp.pi)
+            qpos0 = qpos0.at[FREE_QUATERNION].set(heading_quaternion(heading).astype(qpos0.dtype))
+        position_key, velocity_key = jax.random.split(rng)
         qpos = qpos0 + jax.random.uniform(
             position_key, (self.mj_model.nq,), minval=-noise.qpos_uniform, maxval=noise.qpos_uniform
         )
@@ -228,8 +292,9 @@ class BodyEnv:
         return initial.replace(qpos=qpos.astype(dtype), qvel=qvel.astype(dtype))
 
     def simulate(self, data: PhysicsData, action: jax.Array, variant: Variant | None = None) -> PhysicsData:
-        """``frame_skip`` physics steps under ``action`` [n]; derived quantities not yet computed."""
-        data = data.replace(ctrl=jnp.clip(action[self.motor_limbs], -1.0, 1.0))
+        """``frame_skip`` physics steps under ``action`` (:attr:`action_shape`); derived quantities not yet
+        computed."""
+        data = data.replace(ctrl=jnp.clip(jnp.ravel(action)[self.motor_actions], -1.0, 1.0))
         return self.simulator.advance(data, self.morphology.frame_skip, self._row(variant))
 
     def kinematics(self, data: PhysicsData, variant: Variant | None = None) -> PhysicsData:
@@ -244,37 +309,55 @@ class BodyEnv:
             return self.simulator.velocities(data, self._row(variant))
         return self.kinematics(data, variant)
 
-    def start(self, data: PhysicsData, variant: Variant | None = None) -> EnvState:
-        """The state of a new episode at ``data`` (kinematics computed) of ``variant``."""
+    def start(
+        self,
+        data: PhysicsData,
+        variant: Variant | None = None,
+        target: tuple[jax.Array, jax.Array] | None = None,
+    ) -> EnvState:
+        """The state of a new episode at ``data`` (kinematics computed) of ``variant``; in 3D with ``target``
+        (:meth:`first_target`)."""
         zero = jnp.zeros((), jnp.float32)
+        point, key = target if target is not None else (None, None)
         return EnvState(
             data=data,
-            observation=self._observe(data, variant),
+            observation=self._observe(data, variant, point),
             reward=zero,
             terminated=jnp.zeros((), bool),
             truncated=jnp.zeros((), bool),
             episode_return=zero,
             episode_length=jnp.zeros((), jnp.int32),
             variant=variant,
+            target=point,
+            target_key=key,
         )
 
     def finish_step(self, state: EnvState, data: PhysicsData) -> EnvState:
         """The state after ``state`` was simulated to ``data`` (kinematics computed): reward, termination,
         truncation and observation of the step."""
         unstable = _unstable(data)
-        forward_reward = self.reward(state.data.qpos[0], data.qpos[0], data.ctrl)
-        reward = jnp.where(unstable, 0.0, forward_reward).astype(jnp.float32)
-        terminated = unstable | ~self.alive(data)
+        if self.task is None:
+            earned = self.reward(state.data.qpos[0], data.qpos[0], data.ctrl)
+            alive = self.alive(data)
+            target, target_key = None, None
+        else:
+            earned = self.reward_3d(state.data, data, state.target)
+            alive = self.alive_3d(state.data, data)
+            target, target_key = next_target(self.task, state.target, state.target_key, data.xpos[1, :2])
+        reward = jnp.where(unstable, 0.0, earned).astype(jnp.float32)
+        terminated = unstable | ~alive
         length = state.episode_length + 1
         return EnvState(
             data=data,
-            observation=jnp.where(unstable, 0.0, self._observe(data, state.variant)),
+            observation=jnp.where(unstable, 0.0, self._observe(data, state.variant, state.target)),
             reward=reward,
             terminated=terminated,
             truncated=~terminated & (length >= self.morphology.family.max_episode_steps),
             episode_return=state.episode_return + reward,
             episode_length=length,
             variant=state.variant,
+            target=target,
+            target_key=target_key,
         )
 
     def _row(self, variant: Variant | None) -> ModelFields | jax.Array | None:
@@ -283,10 +366,23 @@ class BodyEnv:
             return None
         return variant.index if isinstance(self.simulator, CSimulator) else variant.model
 
-    def _observe(self, data: PhysicsData, variant: Variant | None = None) -> jax.Array:
-        """[n, F] float32 (whatever precision the simulation runs in)."""
+    def _observe(
+        self, data: PhysicsData, variant: Variant | None = None, target: jax.Array | None = None
+    ) -> jax.Array:
+        """[n, F] float32 (whatever precision the simulation runs in); ``target`` [2] in 3D."""
         limbs = slice(1, self.num_limbs + 1)
         layout = self.layout if variant is None else self.layout._replace(joint_range=variant.joint_range)
+        if self.task is not None:
+            return limb_observation_3d(
+                layout,
+                data.qpos,
+                data.xpos[limbs],
+                data.cvel[limbs],
+                data.subtree_com[1],
+                data.xaxis,
+                target,
+                self.gravity,
+            ).astype(jnp.float32)
         return limb_observation(
             layout,
             data.qpos,
@@ -304,6 +400,43 @@ class BodyEnv:
         return (
             reward.forward_weight * forward + reward.alive_bonus - reward.control_cost * jnp.sum(control**2)
         )
+
+    def reward_3d(self, before: PhysicsData, after: PhysicsData, target: jax.Array) -> jax.Array:
+        """3D: forward_weight * (rate of approach to ``target``) + heading_weight * (velocity along the
+        torso's heading at the start of the step) + alive_bonus - control_cost * sum(a^2), from the torso's
+        frame positions before and after the step (:mod:`~swat_jax.envs.walk_to_target`)."""
+        reward = self.morphology.family.reward
+        dt = self.morphology.control_dt
+        start, end = before.xpos[1, :2], after.xpos[1, :2]
+        value = reward.forward_weight * progress(target, start, end, dt)
+        if reward.heading_weight:
+            value += reward.heading_weight * heading_velocity(before.qpos[FREE_QUATERNION], start, end, dt)
+        return value + reward.alive_bonus - reward.control_cost * jnp.sum(after.ctrl**2)
+
+    def alive_3d(self, before: PhysicsData, after: PhysicsData) -> jax.Array:
+        """3D: [] bool, every termination condition of the family holds after the step (pitch and roll:
+        at its start), morphology/families.py."""
+        termination = self.morphology.family.termination
+        height = after.qpos[2]
+        if len(self.height_limbs):
+            height = jnp.minimum(height, jnp.min(after.xpos[self.height_limbs + 1, 2]))
+        alive = jnp.ones((), bool)
+        if termination.height is not None:
+            low, high = termination.height
+            alive &= (height > low) & (height < high)
+        if termination.max_tilt is not None:
+            alive &= jnp.abs(tilt(after.qpos[FREE_QUATERNION])) < termination.max_tilt
+        if termination.max_pitch_roll is not None:
+            _, pitch, roll = heading_pitch_roll(before.qpos[FREE_QUATERNION])
+            alive &= (jnp.abs(pitch) < termination.max_pitch_roll) & (
+                jnp.abs(roll) < termination.max_pitch_roll
+            )
+        if termination.bounded_state:
+            alive &= jnp.all(jnp.abs(after.qpos[3:]) < BOUNDED_STATE_LIMIT)
+            alive &= jnp.all(jnp.abs(after.qvel) < BOUNDED_STATE_LIMIT)
+        if termination.min_speed_squared is not None:
+            alive &= jnp.sum(after.qvel**2) > termination.min_speed_squared
+        return alive
 
     def alive(self, data: PhysicsData) -> jax.Array:
         """[] bool: every termination condition of the body holds (the family's termination, morphology/families.py); ``data``
@@ -330,11 +463,11 @@ def _unstable(data: PhysicsData) -> jax.Array:
     return ~finite | jnp.any(jnp.abs(data.qvel) > EXPLOSION_SPEED)
 
 
-def _motor_limbs(morphology: Morphology, num_motors: int) -> np.ndarray:
-    """[nu] int32: the limb whose action drives each actuator (inverse of ``limb_motors``; load() has
-    checked that every actuator drives exactly one limb)."""
-    limbs = np.full(num_motors, -1, np.int32)
-    for limb, motor in enumerate(morphology.limb_motors):
-        if motor >= 0:
-            limbs[motor] = limb
-    return limbs
+def _motor_actions(morphology: Morphology, num_motors: int) -> np.ndarray:
+    """[nu] int32: the entry of the flattened action ([n] or [n, M]) that drives each actuator (inverse of
+    ``limb_motors``; load() has checked that every actuator drives exactly one limb's hinge)."""
+    actions = np.full(num_motors, -1, np.int32)
+    for limb, motors in enumerate(morphology.limb_motors):
+        for slot, motor in enumerate(motors):
+            actions[motor] = limb * morphology.motors_per_limb + slot
+    return actions

@@ -54,7 +54,9 @@ POSITION = mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL
 """The part of :data:`STATE` the kinematics read."""
 DERIVED = ("xpos", "xquat", "cvel", "subtree_com", "site_xpos")
 """The derived fields of ``MjData`` a :class:`CData` holds: what the environment's observation and
-termination read."""
+termination read (3D bodies also ``xaxis``, :data:`JOINT_AXES`)."""
+JOINT_AXES = "xaxis"
+"""The derived field a 3D body's observation reads besides :data:`DERIVED`: the world axis of every joint."""
 
 
 @struct.dataclass
@@ -86,6 +88,8 @@ class CData:
     """[nbody, 3] float32 centres of mass of each body's subtree."""
     site_xpos: jax.Array
     """[nsite, 3] float32 site positions."""
+    xaxis: jax.Array | None = None
+    """[njnt, 3] float32 world joint axes (3D bodies; None for a planar body, which does not read them)."""
 
     def where(self, done: jax.Array, other: CData) -> CData:
         """``other`` where ``done`` (a scalar inside ``vmap``), else this state (``mjx.Data.where``'s
@@ -102,6 +106,7 @@ class CSimulator:
             a state's ``index`` picks one). All share one topology (the same sizes).
         name: the body's name, for errors.
         threads: threads that step the copies of one call; default: the CPUs this process may use.
+        joint_axes: also compute the joints' world axes (``xaxis``), which a 3D body's observation reads.
 
     Raises:
         ValueError: no model, models of different sizes, or ``threads`` < 1.
@@ -109,7 +114,13 @@ class CSimulator:
 
     implementation = "c"
 
-    def __init__(self, mj_models: Sequence[mujoco.MjModel], name: str = "body", threads: int | None = None):
+    def __init__(
+        self,
+        mj_models: Sequence[mujoco.MjModel],
+        name: str = "body",
+        threads: int | None = None,
+        joint_axes: bool = False,
+    ):
         if not mj_models:
             raise ValueError("CSimulator needs at least one model")
         sizes = {(m.nq, m.nv, m.na, m.nu, m.nbody, m.nsite) for m in mj_models}
@@ -126,7 +137,9 @@ class CSimulator:
         self._lock = threading.Lock()
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="swat_jax_c_physics")
         example = mujoco.MjData(model)
-        self._derived_shapes = {name: np.shape(getattr(example, name)) for name in DERIVED}
+        self.derived = DERIVED + ((JOINT_AXES,) if joint_axes else ())
+        """The derived fields this simulator's states hold."""
+        self._derived_shapes = {name: np.shape(getattr(example, name)) for name in self.derived}
         zeros = {name: np.zeros(shape, np.float32) for name, shape in self._derived_shapes.items()}
         self.initial = CData(
             qpos=jnp.asarray(model.qpos0, jnp.float32),
@@ -148,7 +161,7 @@ class CSimulator:
         fields as the last one leaves them, with ``cvel`` of the new qvel (module docstring)."""
         outputs = jax.pure_callback(
             lambda *args: self._host_call(_advance_copy, args, steps),
-            _result_shapes(data, self.state_size),
+            _result_shapes(data, self.state_size, self.derived),
             *self._inputs(data, index),
             vmap_method="broadcast_all",
         )
@@ -159,7 +172,7 @@ class CSimulator:
         (``mj_kinematics``, ``mj_comPos``, ``mj_comVel``)."""
         outputs = jax.pure_callback(
             lambda *args: self._host_call(_derive_copy, args, 0),
-            _result_shapes(data, self.state_size),
+            _result_shapes(data, self.state_size, self.derived),
             *self._inputs(data, index),
             vmap_method="broadcast_all",
         )
@@ -184,7 +197,7 @@ class CSimulator:
             act=act,
             qacc_warmstart=warmstart,
             remainder=remainder,
-            **dict(zip(DERIVED, derived, strict=True)),
+            **dict(zip(self.derived, derived, strict=True)),
         )
 
     def _host_call(
@@ -220,7 +233,10 @@ class CSimulator:
         return (
             rounded.reshape(*lead, -1),
             left.reshape(*lead, -1),
-            *(derived[name].astype(np.float32).reshape(*lead, *derived[name].shape[1:]) for name in DERIVED),
+            *(
+                derived[name].astype(np.float32).reshape(*lead, *derived[name].shape[1:])
+                for name in self.derived
+            ),
         )
 
     def _run_block(
@@ -250,7 +266,7 @@ class CSimulator:
                     f"{self.name}: MuJoCo rejected a physics step on physics 'c': {error}; its MJCF may need "
                     "more memory (<size memory=...>), or the body may run on physics 'jax'"
                 ) from error
-            for name in DERIVED:
+            for name in self.derived:
                 derived[name][row] = getattr(data, name)
 
 
@@ -301,13 +317,13 @@ def _split(full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rounded, np.concatenate([middle, low], axis=-1)
 
 
-def _result_shapes(data: CData, state_size: int) -> tuple[jax.ShapeDtypeStruct, ...]:
+def _result_shapes(data: CData, state_size: int, derived: Sequence[str]) -> tuple[jax.ShapeDtypeStruct, ...]:
     """The shapes of a call's results for one copy (``vmap`` adds the leading axes): state, remainder,
-    then the :data:`DERIVED` fields."""
+    then the ``derived`` fields."""
     state = jax.ShapeDtypeStruct((state_size,), jnp.float32)
     remainder = jax.ShapeDtypeStruct((2 * state_size,), jnp.float32)
     return (
         state,
         remainder,
-        *(jax.ShapeDtypeStruct(getattr(data, name).shape, jnp.float32) for name in DERIVED),
+        *(jax.ShapeDtypeStruct(getattr(data, name).shape, jnp.float32) for name in derived),
     )

@@ -173,6 +173,13 @@ class MultiTaskEnv:
         self.lock_step = lock_step
         self.max_limbs = largest.num_limbs if max_limbs is None else max_limbs
         self.observation_features = self.envs[0].observation_features
+        self.motors_per_limb = self.envs[0].morphology.motors_per_limb
+        """M, actions per limb: 1 planar, 3 in 3D (the widths above keep planar and 3D bodies apart)."""
+
+    @property
+    def action_shape(self) -> tuple[int, ...]:
+        """One task's action for every copy, after the leading seed and task axes: (n, L) or (n, L, M)."""
+        return (self.copies, self.max_limbs) + ((self.motors_per_limb,) if self.motors_per_limb > 1 else ())
 
     @property
     def num_bodies(self) -> int:
@@ -213,15 +220,15 @@ class MultiTaskEnv:
         return jax.tree_util.tree_map(lambda table: table[rows], env.variant_table())
 
     def step(self, state: MultiTaskState, action: jax.Array) -> tuple[MultiTaskState, StepResult]:
-        """Apply ``action`` [*S, K, n, L] (padded limbs ignored) to every copy; reset finished copies (and,
-        with lock-step rounds, every copy when the round ends)."""
+        """Apply ``action`` [*S, K, n, L] ([*S, K, n, L, M] in 3D; padded limbs ignored) to every copy; reset
+        finished copies (and, with lock-step rounds, every copy when the round ends)."""
         seeds = state.seeds
         rng, *keys = self._split(state.rng, seeds)
         both = [
             _step_and_restart(
                 env,
                 _folded(body_state, seeds, self.copies),
-                _folded(action[..., k, :, : env.num_limbs], seeds, self.copies),
+                _folded(self._body_action(action, k, env.num_limbs), seeds, self.copies),
                 _folded(self._copy_keys(key, seeds), seeds, self.copies),
             )
             for k, (env, body_state, key) in enumerate(zip(self.envs, state.bodies, keys, strict=True))
@@ -273,6 +280,13 @@ class MultiTaskEnv:
             round_ended=round_ended,
         )
         return next_state, result
+
+    def _body_action(self, action: jax.Array, task: int, limbs: int) -> jax.Array:
+        """Task ``task``'s actions [*S, n, limbs(, M)] of ``action`` [*S, K, n, L(, M)]."""
+        motor_axes = len(self.action_shape) - 2
+        task_axis = action.ndim - 3 - motor_axes
+        body = jnp.take(action, task, axis=task_axis)
+        return jax.lax.slice_in_dim(body, 0, limbs, axis=body.ndim - 1 - motor_axes)
 
     @property
     def longest_episode(self) -> int:
@@ -397,7 +411,7 @@ def _step_and_restart(
     copies = action.shape[0]
     variant = state.variant
     simulated = jax.vmap(env.simulate)(state.data, action, variant)
-    initial = jax.vmap(env.initial_data)(keys, variant)
+    initial, target = jax.vmap(env.new_episode)(keys, variant)
     if env.stale_kinematics:
         simulated = jax.vmap(env.step_kinematics)(simulated, variant)
         initial = jax.vmap(env.kinematics)(initial, variant)
@@ -408,7 +422,7 @@ def _step_and_restart(
             jax.tree_util.tree_map(lambda x, s=s: x[s], both)
             for s in (slice(None, copies), slice(copies, None))
         )
-    return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial, variant)
+    return jax.vmap(env.finish_step)(state, simulated), jax.vmap(env.start)(initial, variant, target)
 
 
 def _joined(first: jax.Array, second: jax.Array) -> jax.Array:

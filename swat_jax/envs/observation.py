@@ -26,12 +26,30 @@ from swat_jax.morphology.types import Morphology
 VELOCITY_CLIP = 10.0
 KINEMATIC_FEATURES = 12
 """Position, linear velocity, angular velocity and orientation: the slots before the limb type."""
+THREE_D_FEATURES = 36
+"""The slots of a 3D limb's observation before its limb type (:func:`limb_observation_3d`)."""
+ABSENT_JOINT = 0.5
+"""What a 3D limb observes for the scaled angle and range ends of a hinge slot it does not have (the
+torso's, in SGRL's observation)."""
 
 
 def features_per_limb(num_limb_types: int) -> int:
     """F, the values of one limb's observation for a family of ``num_limb_types`` limb types: the kinematic
     slots, the limb type one-hot, and the scaled joint angle and range (3)."""
     return KINEMATIC_FEATURES + num_limb_types + 3
+
+
+def body_features(morphology: Morphology) -> int:
+    """F of ``morphology``'s observation: :func:`features_per_limb_3d` for a 3D family, else
+    :func:`features_per_limb`."""
+    types = morphology.family.num_limb_types
+    return features_per_limb_3d(types) if morphology.family.three_d else features_per_limb(types)
+
+
+def features_per_limb_3d(num_limb_types: int) -> int:
+    """F of a 3D body (:func:`limb_observation_3d`): 36 slots, the limb type one-hot, and the height (41 for
+    SGRL's four limb types)."""
+    return THREE_D_FEATURES + num_limb_types + 1
 
 
 class ObservationLayout(NamedTuple):
@@ -43,30 +61,49 @@ class ObservationLayout(NamedTuple):
     limb_type_one_hot: np.ndarray
     """[n, T] float32."""
     joint_qpos_address: np.ndarray
-    """[n] int32 index into qpos of each limb's hinge; 0 for the torso (masked)."""
+    """[n] int32 index into qpos of each limb's hinge ([n, M] in 3D, one per hinge slot); 0 where a limb
+    has no hinge (masked)."""
     joint_range: np.ndarray
-    """[n, 2] float32 joint range in degrees; 0 for the torso."""
+    """[n, 2] float32 joint range in degrees ([n, M, 2] in 3D); 0 where a limb has no hinge."""
     has_joint: np.ndarray
-    """[n] bool, False for the torso."""
+    """[n] bool, False for the torso ([n, M] in 3D: the limb has a hinge in this slot)."""
+    joint_id: np.ndarray
+    """[n] int32 MuJoCo joint index of each hinge ([n, M] in 3D); 0 where there is none (masked)."""
+
+    @property
+    def three_d(self) -> bool:
+        return self.has_joint.ndim == 2
 
     @property
     def features(self) -> int:
-        return features_per_limb(self.limb_type_one_hot.shape[1])
+        types = self.limb_type_one_hot.shape[1]
+        return features_per_limb_3d(types) if self.three_d else features_per_limb(types)
 
 
 def observation_layout(morphology: Morphology, model: mujoco.MjModel) -> ObservationLayout:
-    """The layout of ``morphology``, compiled as ``model``."""
+    """The layout of ``morphology``, compiled as ``model``: [n] per limb planar, [n, M] per hinge slot in 3D."""
     types = np.asarray(morphology.limb_types)
     one_hot = (types[:, None] == np.arange(morphology.family.num_limb_types)[None, :]).astype(np.float32)
-    addresses = np.zeros(morphology.num_limbs, np.int32)
-    for limb, joint in enumerate(morphology.joint_names[1:], start=1):
-        addresses[limb] = model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+    joints = np.zeros((morphology.num_limbs, morphology.motors_per_limb), np.int32)
+    for limb, names in enumerate(morphology.joint_names):
+        for slot, name in enumerate(names):
+            joints[limb, slot] = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+    has_joint = morphology.motor_mask()
+    if not morphology.family.three_d:
+        joints, has_joint = joints[:, 0], has_joint[:, 0]
     return ObservationLayout(
         limb_type_one_hot=one_hot,
-        joint_qpos_address=addresses,
-        joint_range=morphology.joint_range_array(),
-        has_joint=np.arange(morphology.num_limbs) > 0,
+        joint_qpos_address=np.where(has_joint, model.jnt_qposadr[joints], 0).astype(np.int32),
+        joint_range=layout_joint_range(morphology),
+        has_joint=has_joint,
+        joint_id=joints,
     )
+
+
+def layout_joint_range(morphology: Morphology) -> np.ndarray:
+    """The joint ranges an observation reads, float32 degrees: [n, 2] planar, [n, M, 2] in 3D."""
+    ranges = morphology.joint_range_array()
+    return ranges if morphology.family.three_d else ranges[:, 0]
 
 
 def exponential_map(quaternion: jnp.ndarray) -> jnp.ndarray:
@@ -131,6 +168,70 @@ def limb_observation(
             layout.limb_type_one_hot,
             scaled[:, None],
             ends,
+        ],
+        axis=-1,
+    )
+
+
+def limb_observation_3d(
+    layout: ObservationLayout,
+    qpos: jnp.ndarray,
+    xpos: jnp.ndarray,
+    cvel: jnp.ndarray,
+    root_com: jnp.ndarray,
+    joint_axes: jnp.ndarray,
+    target: jnp.ndarray,
+    gravity: np.ndarray,
+) -> jnp.ndarray:
+    """Per-limb observation [n, 37 + T] of one 3D body (SGRL's, 41 values for T = 4):
+
+        0:3    world position of the limb's frame origin minus the torso's
+        3:6    gravity (0, 0, -9.81)
+        6:9    unit direction from the torso to the target, in the floor plane (x, y, 0)
+        9:12   linear velocity of the frame origin, world axes, clipped to [-10, 10]
+        12:15  angular velocity, world axes
+        15:24  world axis of the limb's x, y and z hinges (0 where it has none)
+        24:27  the three hinge angles, radians (0 where none)
+        27:36  per hinge: the angle scaled to [0, 1] over its range, and the range ends as
+               (180 + degrees) / 360 (0.5, 0.5, 0.5 where none)
+        36:36+T  limb-type one-hot
+        36+T   height of the frame origin
+
+    Args:
+        layout: the body's 3D ObservationLayout ([n, M] joint fields).
+        qpos: [nq] joint positions.
+        xpos, cvel: [n, 3], [n, 6] of the limbs (MuJoCo bodies 1..n).
+        root_com: [3] centre of mass of the torso's subtree.
+        joint_axes: [njnt, 3] world axes of every joint (MuJoCo's ``xaxis``).
+        target: [2] the target point (x, y).
+        gravity: [3] the model's gravity.
+    """
+    qpos, xpos, cvel, root_com, joint_axes, target = map(
+        jnp.asarray, (qpos, xpos, cvel, root_com, joint_axes, target)
+    )
+    n = xpos.shape[0]
+    has = layout.has_joint
+    linear, angular = frame_velocities(xpos, cvel, root_com)
+    direction = target - xpos[0, :2]
+    direction = direction / jnp.linalg.norm(direction)
+    angle = jnp.where(has, qpos[layout.joint_qpos_address], 0.0)
+    low, high = layout.joint_range[..., 0], layout.joint_range[..., 1]
+    scaled = (jnp.degrees(angle) - low) / jnp.where(has, high - low, 1.0)
+    joint = jnp.stack([scaled, (180.0 + low) / 360.0, (180.0 + high) / 360.0], axis=-1)
+    joint = jnp.where(has[..., None], joint, ABSENT_JOINT)
+    axes = jnp.where(has[..., None], joint_axes[layout.joint_id], 0.0)
+    return jnp.concatenate(
+        [
+            xpos - xpos[0],
+            jnp.broadcast_to(jnp.asarray(gravity, xpos.dtype), (n, 3)),
+            jnp.broadcast_to(jnp.concatenate([direction, jnp.zeros(1, xpos.dtype)]), (n, 3)),
+            jnp.clip(linear, -VELOCITY_CLIP, VELOCITY_CLIP),
+            angular,
+            axes.reshape(n, -1),
+            angle,
+            joint.reshape(n, -1),
+            layout.limb_type_one_hot,
+            xpos[:, 2:],
         ],
         axis=-1,
     )

@@ -9,7 +9,8 @@ and once per unrolled stage), and XLA compile time grows with each copy: 13 s pe
 :func:`rk4_step` computes the same classic RK4 step (MuJoCo's tableau: stages at 0, dt/2, dt/2, dt with
 weights 1/6, 1/3, 1/3, 1/6) as a ``lax.scan`` over the four stages, so ``forward`` is traced once.
 It relies on every joint being a hinge or a slide (qpos integrates linearly), which holds for every
-body :func:`swat_jax.morphology.load` accepts; :func:`physics_step` checks it.
+planar body :func:`swat_jax.morphology.load` accepts; a 3D body's free torso (a quaternion) steps with
+``mjx.step`` (:func:`physics_step`).
 
 Warp (``physics="warp"``, needs ``pip install -e '.[warp]'``) runs MuJoCo Warp's kernels as foreign
 function calls: XLA compiles a few calls per body instead of the physics, and Warp compiles its kernels
@@ -103,16 +104,13 @@ def _weighted_sum(derivatives: jax.Array) -> jax.Array:
 
 
 def physics_step(mj_model: mujoco.MjModel) -> Callable[[mjx.Model, mjx.Data], mjx.Data]:
-    """The single-timestep function for ``mj_model``'s integrator: :func:`rk4_step` or ``mjx.step``.
-
-    Raises:
-        ValueError: an RK4 model has a free or ball joint (its qpos would not integrate linearly).
-    """
-    if mj_model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4:
-        return mjx.step
+    """The single-timestep function for ``mj_model``: :func:`rk4_step` for RK4 models of hinges and slides
+    only, else ``mjx.step`` (other integrators, and free or ball joints, whose quaternions it integrates)."""
     linear = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
-    if not np.all(np.isin(mj_model.jnt_type, linear)):
-        raise ValueError("rk4_step supports hinge and slide joints only; this model has a free or ball joint")
+    if mj_model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4 or not np.all(
+        np.isin(mj_model.jnt_type, linear)
+    ):
+        return mjx.step
     return rk4_step
 
 

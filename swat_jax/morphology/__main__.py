@@ -76,9 +76,15 @@ def list_text() -> str:
     for environment_set in SETS.values():
         lines += _set_lines(environment_set, limbs)
     width = max(map(len, bodies))
-    lines += ["", f"Benchmark bodies ({len(bodies)}):", f"  {'name':<{width}}  {'family':<10} limbs"]
+    family_width = max(len(body.family.name) for body in bodies.values())
     lines += [
-        f"  {name:<{width}}  {body.family.name:<10} {body.num_limbs:>5}" for name, body in bodies.items()
+        "",
+        f"Benchmark bodies ({len(bodies)}):",
+        f"  {'name':<{width}}  {'family':<{family_width}} limbs",
+    ]
+    lines += [
+        f"  {name:<{width}}  {body.family.name:<{family_width}} {body.num_limbs:>5}"
+        for name, body in bodies.items()
     ]
     return "\n".join(lines)
 
@@ -91,11 +97,19 @@ def _tree_lines(morphology: Morphology) -> list[str]:
         label = f"{'  ' * depths[limb]}{name}"
         head = f"  [{limb}] {label:<{width}}  type {morphology.limb_type_name(limb):<6}"
         if morphology.parents[limb] < 0:
-            lines.append(f"{head}  root: slides along x and z, hinge for pitch")
+            root = "free joint" if morphology.family.three_d else "slides along x and z, hinge for pitch"
+            lines.append(f"{head}  root: {root}")
             continue
-        low, high = morphology.joint_ranges[limb]
-        joint = f"{morphology.joint_names[limb]} [{low:g}, {high:g}] deg"
-        lines.append(f"{head}  {joint}  motor {morphology.limb_motors[limb]}")
+        joints = ", ".join(
+            f"{name} [{low:g}, {high:g}] deg motor {motor}"
+            for name, (low, high), motor in zip(
+                morphology.joint_names[limb],
+                morphology.joint_ranges[limb],
+                morphology.limb_motors[limb],
+                strict=True,
+            )
+        )
+        lines.append(f"{head}  {joints}")
     return lines
 
 
@@ -150,9 +164,9 @@ def show_json(morphology: Morphology, *, reference_inorder: bool = False) -> dic
         "parents": list(morphology.parents),
         "limb_types": list(morphology.limb_types),
         "limb_type_names": [morphology.limb_type_name(limb) for limb in range(morphology.num_limbs)],
-        "joints": list(morphology.joint_names),
-        "joint_ranges": [list(r) if r is not None else None for r in morphology.joint_ranges],
-        "motors": list(morphology.limb_motors),
+        "joints": [list(names) for names in morphology.joint_names],
+        "joint_ranges": [[list(r) for r in ranges] for ranges in morphology.joint_ranges],
+        "motors": [list(motors) for motors in morphology.limb_motors],
         "reference_inorder": reference_inorder,
         "traversals": {kind: traversals[:, column].tolist() for column, kind in enumerate(TRAVERSAL_NAMES)},
         "relations": {

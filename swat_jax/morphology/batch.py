@@ -34,10 +34,9 @@ class StructureBatch(NamedTuple):
     """[K, L, L, 3] float32 laplacian/spd/ppr relations (eq. 4); padding rows and columns 0."""
     limb_types: np.ndarray
     """[K, L] int32 limb type index; -1 for unmatched limbs and for padding."""
-    joint_ranges: np.ndarray
-    """[K, L, 2] float32 joint range in degrees; 0 for the torso and for padding."""
-    limb_motors: np.ndarray
-    """[K, L] int32 actuator index driving each limb; -1 for the torso and for padding."""
+    motor_mask: np.ndarray
+    """[K, L, M] bool: the limb has a motor in this action slot (M = 1 planar, 3 in 3D); False for the
+    torso and for padding."""
     num_limbs: np.ndarray
     """[K] int32 real limb count per body."""
 
@@ -72,8 +71,7 @@ def pad_structures(
         traversal_positions=np.zeros((k, width, len(TRAVERSAL_NAMES)), np.int32),
         relations=np.zeros((k, width, width, len(RELATION_NAMES)), np.float32),
         limb_types=np.full((k, width), -1, np.int32),
-        joint_ranges=np.zeros((k, width, 2), np.float32),
-        limb_motors=np.full((k, width), -1, np.int32),
+        motor_mask=np.zeros((k, width, _motors_per_limb(bodies)), bool),
         num_limbs=np.array([body.num_limbs for body in bodies], np.int32),
     )
     for row, body in enumerate(bodies):
@@ -85,9 +83,20 @@ def pad_structures(
         )
         batch.relations[row, :n, :n] = relation_features(body.parents)
         batch.limb_types[row, :n] = body.limb_types
-        batch.joint_ranges[row, :n] = body.joint_range_array()
-        batch.limb_motors[row, :n] = body.limb_motors
+        batch.motor_mask[row, :n] = body.motor_mask()
     return batch
+
+
+def _motors_per_limb(bodies: Sequence[Morphology]) -> int:
+    """M of the bodies (one policy acts with M values per limb, so they must agree)."""
+    counts = {body.motors_per_limb for body in bodies}
+    if len(counts) > 1:
+        names = ", ".join(f"{body.name} ({body.motors_per_limb})" for body in bodies)
+        raise ValueError(
+            f"bodies with different motors per limb cannot share a policy (planar bodies have 1, 3D bodies "
+            f"3): {names}"
+        )
+    return counts.pop()
 
 
 class LimbBucket(NamedTuple):
@@ -150,8 +159,7 @@ STRUCTURE_LIMB_AXES = StructureBatch(
     traversal_positions=(1,),
     relations=(1, 2),
     limb_types=(1,),
-    joint_ranges=(1,),
-    limb_motors=(1,),
+    motor_mask=(1,),
     num_limbs=(),
 )
 """The limb axes of each field of a [K, L, ...] StructureBatch."""

@@ -2,8 +2,10 @@
 
 A body file follows the benchmark's conventions: one root body under the worldbody (the torso) that
 moves on two slide joints (x, then z) and one hinge (pitch), and below it a tree of limbs, each with
-exactly one hinge joint driven by exactly one motor. The family is declared in the file:
-``<custom><text name="swat_family" data="walker"/></custom>`` (families.py lists them).
+exactly one hinge joint driven by exactly one motor. A body of a 3D family (SGRL's benchmark) has a
+free torso instead, and one to three hinges per limb (x, y, z), each with its motor. The family is
+declared in the file: ``<custom><text name="swat_family" data="walker"/></custom>`` (families.py
+lists them).
 """
 
 from __future__ import annotations
@@ -249,7 +251,7 @@ def _family_name(path: Path, model: mujoco.MjModel) -> str:
     return family
 
 
-def _check_root(path: Path, model: mujoco.MjModel) -> None:
+def _check_root(path: Path, model: mujoco.MjModel, spec: FamilySpec) -> None:
     roots = [b for b in range(1, model.nbody) if model.body_parentid[b] == 0]
     if not roots:
         raise MorphologyError(path, "<worldbody> has no <body>; a body file needs one root body, the torso")
@@ -260,6 +262,14 @@ def _check_root(path: Path, model: mujoco.MjModel) -> None:
         )
     torso = _name(model, mujoco.mjtObj.mjOBJ_BODY, 1)
     joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == 1]
+    if spec.three_d:
+        if len(joints) != 1 or model.jnt_type[joints[0]] != mujoco.mjtJoint.mjJNT_FREE:
+            raise MorphologyError(
+                path,
+                f"torso <body name={torso!r}> of a 3D body ({spec.name}) needs exactly one joint, a free "
+                f'joint (<freejoint/> or <joint type="free"/>); it has {len(joints)} joints',
+            )
+        return
     expected = "slide along x, slide along z, hinge about y (in that order)"
     if len(joints) != len(ROOT_JOINTS):
         raise MorphologyError(
@@ -276,7 +286,8 @@ def _check_root(path: Path, model: mujoco.MjModel) -> None:
             )
 
 
-def _limb_joint(path: Path, model: mujoco.MjModel, body: int) -> int:
+def _limb_joints(path: Path, model: mujoco.MjModel, body: int, most: int) -> tuple[int, ...]:
+    """The hinges of limb ``body``: exactly one for a planar body, one to ``most`` in 3D."""
     limb = _name(model, mujoco.mjtObj.mjOBJ_BODY, body)
     joints = [j for j in range(model.njnt) if model.jnt_bodyid[j] == body]
     if not joints:
@@ -291,23 +302,25 @@ def _limb_joint(path: Path, model: mujoco.MjModel, body: int) -> int:
                 path,
                 f"limb <body name={limb!r}> has a {kind} joint {name!r}; limbs below the torso need hinges",
             )
-    if len(joints) > 1:
+    if len(joints) > most:
+        allowed = "one hinge" if most == 1 else f"at most {most} hinges (x, y, z) in 3D"
         raise MorphologyError(
             path,
-            f"limb <body name={limb!r}> has {len(joints)} joints ({', '.join(names)}); a limb has one hinge",
+            f"limb <body name={limb!r}> has {len(joints)} joints ({', '.join(names)}); a limb has {allowed}",
         )
-    if not model.jnt_limited[joints[0]]:
-        raise MorphologyError(
-            path,
-            f'limb joint <joint name={names[0]!r}> has no range (limited="false", no range, or LOW >= HIGH); '
-            'the observation scales each joint angle by its range: give it range="LOW HIGH" in degrees, '
-            "LOW < HIGH",
-        )
-    return joints[0]
+    for joint, name in zip(joints, names, strict=True):
+        if not model.jnt_limited[joint]:
+            raise MorphologyError(
+                path,
+                f'limb joint <joint name={name!r}> has no range (limited="false", no range, or LOW >= HIGH); '
+                'the observation scales each joint angle by its range: give it range="LOW HIGH" in degrees, '
+                "LOW < HIGH",
+            )
+    return tuple(joints)
 
 
 def _check_motor(path: Path, model: mujoco.MjModel, actuator: int) -> None:
-    """A torque motor on one joint with a nonzero gear: the policy's action is a torque command."""
+    """A torque motor on one joint: the policy's action is a torque command."""
     name = _element(model, _ACTUATOR, actuator)
     if model.actuator_trntype[actuator] != mujoco.mjtTrn.mjTRN_JOINT:
         raise MorphologyError(path, f"{name} does not drive a joint; every motor drives one limb joint")
@@ -323,27 +336,35 @@ def _check_motor(path: Path, model: mujoco.MjModel, actuator: int) -> None:
             "activation dynamics or a bias force); the policy's actions are torques: drive every limb "
             'joint with <motor joint="..." gear="...">',
         )
-    if model.actuator_gear[actuator, 0] == 0:
-        raise MorphologyError(
-            path,
-            f'{name} has gear="0", so its limb can never move; give it a nonzero gear '
-            "(the benchmark's motors use 12.5 to 200)",
-        )
 
 
-def _limb_motors(path: Path, model: mujoco.MjModel, limb_joints: list[int]) -> tuple[int, ...]:
+def _limb_motors(
+    path: Path, model: mujoco.MjModel, limb_joints: list[tuple[int, ...]]
+) -> tuple[tuple[int, ...], ...]:
+    """The motor of each limb's hinges; () for the torso. A limb needs a motor with a nonzero gear (3D
+    bodies keep the benchmark's gear-0 motors on the hinges it does not drive)."""
     for actuator in range(model.nu):
         _check_motor(path, model, actuator)
-    motors = [-1]
-    for joint in limb_joints:
-        driving = [a for a in range(model.nu) if model.actuator_trnid[a, 0] == joint]
-        name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
-        if len(driving) != 1:
+    motors: list[tuple[int, ...]] = [()]
+    for joints in limb_joints:
+        limb_motors = []
+        for joint in joints:
+            driving = [a for a in range(model.nu) if model.actuator_trnid[a, 0] == joint]
+            name = _name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+            if len(driving) != 1:
+                raise MorphologyError(
+                    path,
+                    f"joint {name!r} is driven by {len(driving)} motors; every limb joint needs exactly one <motor>",
+                )
+            limb_motors.append(driving[0])
+        if not model.actuator_gear[limb_motors, 0].any():
+            names = " and ".join(_element(model, _ACTUATOR, motor) for motor in limb_motors)
             raise MorphologyError(
                 path,
-                f"joint {name!r} is driven by {len(driving)} motors; every limb joint needs exactly one <motor>",
+                f'{names} {"has" if len(limb_motors) == 1 else "have"} gear="0", so its limb can never move; '
+                "give it a nonzero gear (the benchmark's motors use 12.5 to 300)",
             )
-        motors.append(driving[0])
+        motors.append(tuple(limb_motors))
     return tuple(motors)
 
 
@@ -374,14 +395,14 @@ def load(name_or_path: str | Path, *, max_limbs: int | None = None) -> Morpholog
     model = _compile(path)
     _check_numbers(path, model)
     family = _family_name(path, model)
-    _check_root(path, model)
+    spec = family_spec(family, _custom_text(model, SOURCE_TEXT) or path.stem)
+    _check_root(path, model, spec)
     limbs = list(range(1, model.nbody))
     if max_limbs is not None and len(limbs) > max_limbs:
         raise MorphologyError(
             path, f"{len(limbs)} limbs, more than the maximum of {max_limbs}; raise max_limbs or remove limbs"
         )
-    joints = [_limb_joint(path, model, body) for body in limbs[1:]]
-    spec = family_spec(family, _custom_text(model, SOURCE_TEXT) or path.stem)
+    joints = [_limb_joints(path, model, body, spec.motors_per_limb) for body in limbs[1:]]
     names = tuple(_name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in limbs)
     return Morphology(
         name=path.stem,
@@ -390,8 +411,8 @@ def load(name_or_path: str | Path, *, max_limbs: int | None = None) -> Morpholog
         limb_names=names,
         parents=tuple(int(model.body_parentid[b]) - 1 for b in limbs),
         limb_types=tuple(_limb_type(spec, "torso" if i == 0 else n) for i, n in enumerate(names)),
-        joint_names=(None, *(_name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints)),
-        joint_ranges=(None, *(_joint_range(model, j) for j in joints)),
+        joint_names=((), *(tuple(_name(model, _JOINT, j) for j in limb) for limb in joints)),
+        joint_ranges=((), *(tuple(_joint_range(model, j) for j in limb) for limb in joints)),
         limb_motors=_limb_motors(path, model, joints),
         timestep=float(model.opt.timestep),
         integrator=mujoco.mjtIntegrator(model.opt.integrator).name.removeprefix("mjINT_"),

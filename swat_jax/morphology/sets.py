@@ -1,6 +1,6 @@
 """The benchmark's environment sets (train and held-out test bodies), and folders of MJCF files.
 
-Splits as AMORPHEUS and SWAT used them. The unions (WH++, WHH++,
+Splits as AMORPHEUS and SWAT used them, and for the 3D bodies as SGRL did. The unions (WH++, WHH++,
 CWH++, CWHH++) are built from the single-family sets, so a split is written down once.
 """
 
@@ -83,6 +83,50 @@ ANIMAL_WALKERS = EnvironmentSet(
     description="Animal-Walkers (NerveNet bodies, 21-value limb observation)",
 )
 
+
+def _sgrl(family: str, description: str, train: str, test: str = "", version: str = "") -> EnvironmentSet:
+    """A 3D-SGRL set: ``3d_<family>[_v2]_<body>`` for each body name of ``train`` and ``test``."""
+    prefix = f"3d_{family}{version}_"
+    return EnvironmentSet(
+        f"3d_{family}{version}",
+        tuple(prefix + body for body in train.split()),
+        tuple(prefix + body for body in test.split()),
+        description,
+    )
+
+
+HOPPER_3D = _sgrl("hopper", "3D Hopper++ (SGRL)", "3_shin 4_lower_shin 5_full")
+WALKER_3D = _sgrl(
+    "walker",
+    "3D Walker++ (SGRL)",
+    "2_right_leg_left_knee 3_left_leg_right_foot 4_right_knee_left_foot 5_foot 5_left_knee 7_full",
+    "3_left_knee_right_knee 6_right_foot",
+)
+HUMANOID_3D = _sgrl(
+    "humanoid",
+    "3D Humanoid++ (SGRL)",
+    "7_left_arm 7_lower_arms 7_right_arm 7_right_leg 8_left_knee 9_full",
+    "7_left_leg 8_right_knee",
+)
+CHEETAH_3D = _sgrl(
+    "cheetah",
+    "3D Cheetah++ (SGRL)",
+    "10_tail_leftbleg 11_leftfleg 11_tail_rightfknee 12_rightbknee 12_tail_leftbfoot 13_rightffoot 13_tail "
+    "14_full",
+    "11_leftbkneen_rightffoot 12_tail_leftffoot",
+)
+NEAR_TARGETS_3D = tuple(
+    _sgrl(
+        s.name.removeprefix("3d_"),
+        s.title + " with near targets (SGRL's v2)",
+        " ".join(b.removeprefix(s.name + "_") for b in s.train),
+        version="_v2",
+    )
+    for s in (HOPPER_3D, WALKER_3D, HUMANOID_3D, CHEETAH_3D)
+)
+"""The ``_v2`` sets: the same training bodies, a new target 10 to 20 m away each time one is reached
+(SGRL has no ``_v2`` files of its held-out bodies)."""
+
 SETS: dict[str, EnvironmentSet] = {
     s.name: s
     for s in (
@@ -97,6 +141,26 @@ SETS: dict[str, EnvironmentSet] = {
             "cwhh", "CWHH++ = Cheetah++, Walker++, Humanoid++ and Hopper++", CHEETAH, WALKER, HUMANOID, HOPPER
         ),
         ANIMAL_WALKERS,
+        HOPPER_3D,
+        WALKER_3D,
+        HUMANOID_3D,
+        CHEETAH_3D,
+        _union(
+            "3d_whh",
+            "3D WHH++ = 3D Walker++, Humanoid++ and Hopper++ (SGRL)",
+            WALKER_3D,
+            HUMANOID_3D,
+            HOPPER_3D,
+        ),
+        _union(
+            "3d_cwhh",
+            "3D CWHH++ = 3D Cheetah++, Walker++, Humanoid++ and Hopper++ (SGRL)",
+            CHEETAH_3D,
+            WALKER_3D,
+            HUMANOID_3D,
+            HOPPER_3D,
+        ),
+        *NEAR_TARGETS_3D,
     )
 }
 
@@ -136,17 +200,18 @@ def check_folder_bodies(folder: Path, bodies: Sequence[str]) -> tuple[Morphology
             f"{len(problems)} of its {len(bodies)} body files cannot be used; fix or move them:\n"
             + "\n".join(problems),
         )
-    vocabularies = {body.family.num_limb_types for body in loaded}
-    if len(vocabularies) > 1:
+    kinds = {(body.family.num_limb_types, body.family.three_d) for body in loaded}
+    if len(kinds) > 1:
         lines = [
-            f"  {body.path.name}: family {body.family.name}, {body.family.num_limb_types} limb types"
+            f"  {body.path.name}: family {body.family.name}, {body.family.num_limb_types} limb types, "
+            + ("3D" if body.family.three_d else "planar")
             for body in loaded
         ]
         raise MorphologyError(
             folder,
-            "its bodies' families have limb-type vocabularies of different sizes, so their per-limb "
-            "observations differ in width and one policy cannot take them all; put the families in "
-            "separate folders:\n" + "\n".join(lines),
+            "its bodies' families have limb-type vocabularies of different sizes, or planar and 3D bodies "
+            "are mixed, so their per-limb observations differ in width and one policy cannot take them "
+            "all; put the families in separate folders:\n" + "\n".join(lines),
         )
     return tuple(loaded)
 

@@ -8,7 +8,9 @@ body and ``jax.vmap`` over the task axis runs a whole environment set::
     actor_params = actor.init(jax.random.key(0))
     actions = jax.vmap(actor.apply, in_axes=(None, 0, 0))(actor_params, obs, batch)  # obs [K, B, L, F]
 
-Outputs on padded limbs are zero.
+Outputs on padded limbs are zero. A limb acts with M values, one per hinge slot: M = 1 for planar bodies
+(actions [batch, limbs]) and 3 for 3D bodies (actions [batch, limbs, 3], zero where a limb has no hinge:
+the torso, and the slots of :attr:`~swat_jax.morphology.StructureBatch.motor_mask` that are False).
 """
 
 from __future__ import annotations
@@ -36,10 +38,26 @@ normalisation."""
 
 def limb_network(config: NetworkConfig, name: str, outputs: int = 1) -> nn.Module:
     """The per-limb network of the configured architecture: (limb_inputs, structure) -> [batch, limbs]
-    (transformers with ``outputs`` > 1: [batch, limbs, outputs])."""
+    (``outputs`` > 1: [batch, limbs, outputs])."""
     if config.architecture == "smp":
-        return SharedModularPolicy(config, name=name)
+        return SharedModularPolicy(config, outputs, name=name)
     return StructureAwareTransformer(config, outputs, name=name)
+
+
+def motors_per_limb(structure: StructureBatch) -> int:
+    """M of a structure slice (static: the last axis of its motor mask)."""
+    return structure.motor_mask.shape[-1]
+
+
+def action_mask(structure: StructureBatch) -> jax.Array:
+    """Where a body's actions may be nonzero: limb_mask [limbs] for planar bodies (the torso's action is
+    computed and ignored by the environment, as in the paper's code), motor_mask [limbs, M] in 3D."""
+    return structure.limb_mask if motors_per_limb(structure) == 1 else structure.motor_mask
+
+
+def limb_action_features(actions: jax.Array) -> jax.Array:
+    """Each limb's actions as input features: [batch, limbs] -> [batch, limbs, 1]; [batch, limbs, M] as is."""
+    return actions[..., None] if actions.ndim == 2 else actions
 
 
 def normalised(config: NetworkConfig, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
@@ -51,16 +69,17 @@ def normalised(config: NetworkConfig, limb_obs: jax.Array, structure: StructureB
 
 
 class Actor(nn.Module):
-    """Deterministic policy: one action in [-1, 1] per limb (tanh of the per-limb output)."""
+    """Deterministic policy: M actions in [-1, 1] per limb (tanh of the per-limb output)."""
 
     config: NetworkConfig
 
     @nn.compact
     def __call__(self, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
-        """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]."""
+        """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]
+        (M = 1) or [batch, limbs, M]."""
         limb_obs = normalised(self.config, limb_obs, structure)
-        actions = jnp.tanh(limb_network(self.config, "policy")(limb_obs, structure))
-        return jnp.where(structure.limb_mask, actions, 0.0)
+        outputs = limb_network(self.config, "policy", motors_per_limb(structure))(limb_obs, structure)
+        return jnp.where(action_mask(structure), jnp.tanh(outputs), 0.0)
 
 
 class Critic(nn.Module):
@@ -88,13 +107,13 @@ class Critic(nn.Module):
     def __call__(
         self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """limb_obs [batch, limbs, features], actions [batch, limbs] -> (q1, q2), each [batch, limbs], or
-        [batch, limbs, atoms] logits with atoms (zero on padded limbs)."""
+        """limb_obs [batch, limbs, features], actions [batch, limbs] or [batch, limbs, M] -> (q1, q2), each
+        [batch, limbs], or [batch, limbs, atoms] logits with atoms (zero on padded limbs)."""
         limb_obs = normalised(self.config, limb_obs, structure)
         if self.config.architecture == "smp":
             q_values = SharedModularCritic(self.config, name="q")(limb_obs, actions, structure)
         else:
-            limb_inputs = jnp.concatenate([limb_obs, actions[..., None]], axis=-1)
+            limb_inputs = jnp.concatenate([limb_obs, limb_action_features(actions)], axis=-1)
             q_values = (
                 limb_network(self.config, name, max(1, self.atoms))(limb_inputs, structure)
                 for name in ("q1", "q2")
@@ -104,10 +123,12 @@ class Critic(nn.Module):
         return q1, q2
 
 
-def torso_only_structure() -> StructureBatch:
-    """One body's slice for a body of a single limb: enough to initialise any network's parameters.
+def torso_only_structure(motors: int = 1) -> StructureBatch:
+    """One body's slice for a body of a single limb with ``motors`` action slots: enough to initialise any
+    network's parameters.
 
-    No parameter shape depends on the number of limbs, so these parameters serve every body.
+    No parameter shape depends on the number of limbs, so these parameters serve every body (of M =
+    ``motors``).
     """
     return StructureBatch(
         limb_mask=np.ones(1, bool),
@@ -115,8 +136,7 @@ def torso_only_structure() -> StructureBatch:
         traversal_positions=np.zeros((1, 3), np.int32),
         relations=np.zeros((1, 1, 3), np.float32),
         limb_types=np.zeros(1, np.int32),
-        joint_ranges=np.zeros((1, 2), np.float32),
-        limb_motors=np.full(1, -1, np.int32),
+        motor_mask=np.zeros((1, motors), bool),
         num_limbs=np.int32(1),
     )
 
@@ -127,17 +147,16 @@ class LimbNetwork:
 
     module: nn.Module
     obs_features: int
+    motors: int = 1
+    """M, actions per limb (1 planar, 3 in 3D)."""
 
     def init(self, rng: jax.Array) -> Params:
         """Fresh parameters ({"params": ...}, and the observation statistics of a network that normalises)
         for observations of ``obs_features`` values a limb."""
-        structure = torso_only_structure()
+        structure = torso_only_structure(self.motors)
         limb_obs = jnp.zeros((1, 1, self.obs_features), jnp.float32)
-        inputs = (
-            (limb_obs, structure)
-            if isinstance(self.module, Actor)
-            else (limb_obs, jnp.zeros((1, 1)), structure)
-        )
+        actions = jnp.zeros((1, 1) if self.motors == 1 else (1, 1, self.motors))
+        inputs = (limb_obs, structure) if isinstance(self.module, Actor) else (limb_obs, actions, structure)
         variables = self.module.init(rng, *inputs)
         params = variables["params"]
         if self.module.config.initialisation == "original":
@@ -150,11 +169,14 @@ class LimbNetwork:
 
 
 def make_actor_critic(
-    config: NetworkConfig, obs_features: int, atoms: int = 0
+    config: NetworkConfig, obs_features: int, atoms: int = 0, motors: int = 1
 ) -> tuple[LimbNetwork, LimbNetwork]:
-    """The actor and the twin critic of ``config`` for ``obs_features`` observation values per limb; a
-    distributional critic of ``atoms`` atoms per limb if not 0 (:class:`Critic`)."""
-    return LimbNetwork(Actor(config), obs_features), LimbNetwork(Critic(config, atoms), obs_features)
+    """The actor and the twin critic of ``config`` for ``obs_features`` observation values and ``motors``
+    actions per limb; a distributional critic of ``atoms`` atoms per limb if not 0 (:class:`Critic`)."""
+    return (
+        LimbNetwork(Actor(config), obs_features, motors),
+        LimbNetwork(Critic(config, atoms), obs_features, motors),
+    )
 
 
 def param_count(params: Params) -> int:

@@ -192,19 +192,22 @@ class MessagePassing(nn.Module):
 
 class SharedModularPolicy(nn.Module):
     """SMP's actor network: message passing over the limbs' observations, then a shared output module
-    on tanh(concat(up message, parent message)); one value per limb."""
+    on tanh(concat(up message, parent message)); one value per limb (``outputs`` > 1: that many, one per
+    hinge of a 3D limb)."""
 
     config: NetworkConfig
+    outputs: int = 1
 
     @nn.compact
     def __call__(self, limb_inputs: jax.Array, structure: StructureBatch) -> jax.Array:
-        """limb_inputs [batch, limbs, features], structure: one body's slice -> [batch, limbs] (padded
-        limbs unspecified)."""
+        """limb_inputs [batch, limbs, features], structure: one body's slice -> [batch, limbs], or [batch,
+        limbs, outputs] with ``outputs`` > 1 (padded limbs unspecified)."""
         up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
         hidden = jnp.tanh(jnp.concatenate([up_messages, from_parent], axis=-1))
-        return MLP(self.config.down_hidden, 1, initialisation=self.config.initialisation, name="output")(
-            hidden
-        )[..., 0]
+        values = MLP(
+            self.config.down_hidden, self.outputs, initialisation=self.config.initialisation, name="output"
+        )(hidden)
+        return values[..., 0] if self.outputs == 1 else values
 
 
 class SharedModularCritic(nn.Module):
@@ -219,9 +222,9 @@ class SharedModularCritic(nn.Module):
     def __call__(
         self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """limb_obs [batch, limbs, features], actions [batch, limbs] -> per-limb (q1, q2), each [batch,
-        limbs] (padded limbs unspecified)."""
-        actions = actions[..., None]
+        """limb_obs [batch, limbs, features], actions [batch, limbs] or [batch, limbs, M] -> per-limb (q1,
+        q2), each [batch, limbs] (padded limbs unspecified)."""
+        actions = actions.reshape(*limb_obs.shape[:2], -1)
         limb_inputs = jnp.concatenate([limb_obs, actions], axis=-1)
         up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
         head_inputs = jnp.concatenate([up_messages, actions, from_parent], axis=-1)

@@ -72,6 +72,8 @@ class CheckpointInfo:
     max_limbs: int
     observation_features: int
     """Values per limb of the observation the actor takes."""
+    motors_per_limb: int = 1
+    """Actions per limb of the actor: 1 planar, 3 in 3D (checkpoints from before 3D bodies: 1)."""
     metrics_window: dict[str, Any] | None = None
     """The metrics accumulated since the last metrics row (:class:`~swat_jax.runs.metrics.MetricsWindow`)."""
     converted_from: str | None = None

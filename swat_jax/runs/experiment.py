@@ -81,7 +81,9 @@ class Experiment:
         )
         if config.init_from:
             check_transfer(config, env.observation_features)
-        actor, critic = make_actor_critic(network, env.observation_features, config.td3.atoms)
+        actor, critic = make_actor_critic(
+            network, env.observation_features, config.td3.atoms, env.motors_per_limb
+        )
         devices = jax.devices() if devices is None else devices
         layout = placement(config.seeds, env.num_bodies, config.envs.copies, devices)
         # A bucket gathers tasks across the task axis: only where that axis is not split over devices.
@@ -256,6 +258,7 @@ class Experiment:
             bodies=tuple(self.env.body_names),
             max_limbs=self.env.max_limbs,
             observation_features=self.env.observation_features,
+            motors_per_limb=self.env.motors_per_limb,
             **extra,
         )
 

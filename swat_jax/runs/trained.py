@@ -10,7 +10,7 @@ from typing import Any
 
 import jax
 
-from swat_jax.envs.observation import features_per_limb
+from swat_jax.envs.observation import body_features
 from swat_jax.morphology import Morphology, StructureBatch, load
 from swat_jax.networks import LimbNetwork, Params, StructureMismatch, TaskSet, make_actor_critic, task_set
 from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
@@ -132,7 +132,7 @@ class TrainedPolicy:
         family vocabulary), or if the policy's network cannot take it (traversal positions, child slots)."""
         loaded = [body if isinstance(body, Morphology) else load(body) for body in bodies]
         for body in loaded:
-            features = features_per_limb(body.family.num_limb_types)
+            features = body_features(body)
             if features != self.info.observation_features:
                 raise ValueError(
                     f"{body.name}: {features} observation features per limb, the policy was trained on "
@@ -153,7 +153,8 @@ class TrainedPolicy:
             ) from error
 
     def act(self, observation: jax.Array, structure: StructureBatch, seed_index: int = 0) -> jax.Array:
-        """observation [batch, limbs, F] and one body's structure slice -> actions [batch, limbs] in [-1, 1]."""
+        """observation [batch, limbs, F] and one body's structure slice -> actions [batch, limbs] ([batch,
+        limbs, M] in 3D) in [-1, 1]."""
         return self.actor.apply(self.seed_params(seed_index), observation, structure)
 
 
@@ -168,6 +169,8 @@ def load_policy(run_dir: str | Path) -> TrainedPolicy:
         info = newest_info(run_dir, checkpoints)
     finally:
         checkpoints.close()
-    actor, _ = make_actor_critic(config.network_config(), info.observation_features)
+    actor, _ = make_actor_critic(
+        config.network_config(), info.observation_features, motors=info.motors_per_limb
+    )
     one_seed = {"actor": jax.eval_shape(actor.init, jax.random.PRNGKey(0))}
     return TrainedPolicy(config, actor, restore_networks(run_dir, one_seed)["actor"], info)

@@ -32,6 +32,9 @@ class Episodes:
     """Per body, [max_steps + 1, nq_k] joint positions of the first seed's first episode: its first
     ``length`` rows are the initial pose and the poses after each step but the last (the copy is reset in
     the step that ends its episode); zeros after them; [0, nq_k] unless recorded."""
+    targets: tuple[jax.Array, ...]
+    """Per body, [max_steps + 1, 2] the target of each of those poses for a 3D body (rows as ``qpos``);
+    [0, 2] unless recorded, and for a planar body."""
 
 
 def make_evaluation(
@@ -43,7 +46,8 @@ def make_evaluation(
         env: the bodies to evaluate; ``env.copies`` episodes per body.
         structure: their StructureBatch [K, ...] padded to ``env.max_limbs`` (the task set's).
         actor: the policy network (``actor.apply(params, observation [n, L, F], structure)``).
-        record: also keep the joint positions of seed 0's first episode of every body (for videos).
+        record: also keep the joint positions (and a 3D body's targets) of seed 0's first episode of every
+            body (for videos).
     """
     structure = jax.tree_util.tree_map(jnp.asarray, structure)
     max_steps = max(body.morphology.family.max_episode_steps for body in env.envs)
@@ -56,7 +60,12 @@ def make_evaluation(
         states = jax.vmap(lambda _: start)(jnp.arange(seeds))
         shape = (seeds, env.num_bodies, env.copies)
         tracks = tuple(
-            jnp.zeros((max_steps + 1 if record else 0, body.mj_model.nq)).at[:1].set(data.data.qpos[:1])
+            (
+                jnp.zeros((max_steps + 1 if record else 0, body.mj_model.nq)).at[:1].set(data.data.qpos[:1]),
+                jnp.zeros((max_steps + 1 if record and body.task else 0, 2))
+                .at[:1]
+                .set(data.target[:1] if record and body.task else jnp.zeros((1, 2))),
+            )
             for body, data in zip(env.envs, start.bodies, strict=True)
         )
 
@@ -73,8 +82,13 @@ def make_evaluation(
             finished = finished | result.terminated | result.truncated
             if record:
                 tracks = tuple(
-                    track.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.data.qpos[0, 0]))
-                    for k, (track, body) in enumerate(zip(tracks, next_states.bodies, strict=True))
+                    (
+                        poses.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.data.qpos[0, 0])),
+                        targets
+                        if body.target is None
+                        else targets.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.target[0, 0])),
+                    )
+                    for k, ((poses, targets), body) in enumerate(zip(tracks, next_states.bodies, strict=True))
                 )
             return t + 1, next_states, finished, returns, lengths, tracks
 
@@ -87,6 +101,11 @@ def make_evaluation(
             tracks,
         )
         *_, returns, lengths, tracks = jax.lax.while_loop(unfinished, step, carry)
-        return Episodes(returns=returns, lengths=lengths, qpos=tracks)
+        return Episodes(
+            returns=returns,
+            lengths=lengths,
+            qpos=tuple(poses for poses, _ in tracks),
+            targets=tuple(targets for _, targets in tracks),
+        )
 
     return evaluate

@@ -34,7 +34,7 @@ from flax import struct
 from swat_jax import axes
 from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState
 from swat_jax.morphology import StructureBatch
-from swat_jax.networks.policies import Params
+from swat_jax.networks.policies import Params, action_mask
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert
 from swat_jax.td3.schedules import Schedule, make_update_phase
@@ -116,6 +116,7 @@ def init_train_state(
         env.max_limbs,
         env.observation_features,
         episode_ends=learner.config.n_step > 1,
+        motors=env.motors_per_limb,
     )
     return TrainState(
         learner=learner_state(learner_key),
@@ -304,11 +305,12 @@ def round_update_counts(
 def make_exploration(
     learner: Learner, structure: StructureBatch, scales: jax.Array
 ) -> Callable[[Params, jax.Array, jax.Array, jax.Array], jax.Array]:
-    """``explore(actor_params, observation [K, n, L, F], uniform_phase [], rng) -> action [K, n, L]`` of one
-    seed (paper section 5.1): uniform random actions in the random phase, else the policy plus Gaussian
-    noise of std ``scales`` [n] per copy (:func:`exploration_scales`), clipped to [-1, 1]; 0 on padded limbs."""
-    mask = structure.limb_mask[:, None, :]
-    noise_scales = scales[None, :, None]
+    """``explore(actor_params, observation [K, n, L, F], uniform_phase [], rng) -> action [K, n, L]`` ([K, n,
+    L, M] in 3D) of one seed (paper section 5.1): uniform random actions in the random phase, else the
+    policy plus Gaussian noise of std ``scales`` [n] per copy (:func:`exploration_scales`), clipped to
+    [-1, 1]; 0 on padded limbs (and on the hinge slots a 3D limb does not have)."""
+    mask = jnp.expand_dims(action_mask(structure), 1)
+    noise_scales = scales.reshape(1, -1, *[1] * (mask.ndim - 2))
 
     def explore(
         actor_params: Params, observation: jax.Array, uniform_phase: jax.Array, rng: jax.Array

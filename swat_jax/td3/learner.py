@@ -40,7 +40,7 @@ from flax import struct
 from swat_jax import axes
 from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, bucket_structures
 from swat_jax.networks.observation_stats import NORMALISER, STATS, accumulate, with_stats
-from swat_jax.networks.policies import LimbNetwork, Params
+from swat_jax.networks.policies import LimbNetwork, Params, action_mask
 from swat_jax.td3.replay import Transitions
 
 
@@ -271,11 +271,12 @@ class Learner:
         noise: jax.Array,
     ) -> jax.Array:
         """Mean squared TD error of one task over its batch and real limbs (SMP: over its batch), or with
-        atoms its cross-entropy (:meth:`_distributional_errors`); ``noise`` [B, L] standard normal."""
+        atoms its cross-entropy (:meth:`_distributional_errors`); ``noise`` [B, L] ([B, L, M] in 3D) standard
+        normal."""
         mask = structure.limb_mask
         noise = jnp.clip(self.config.policy_noise * noise, -self.config.noise_clip, self.config.noise_clip)
         next_action = self.actor.apply(target_actor_params, batch.next_observation, structure)
-        next_action = jnp.where(mask, jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
+        next_action = jnp.where(action_mask(structure), jnp.clip(next_action + noise, -1.0, 1.0), 0.0)
         discount = self.config.discount if batch.bootstrap is None else batch.bootstrap[:, None]
         continues = discount * (1.0 - batch.terminated[:, None])
         if self.config.atoms:

@@ -29,7 +29,7 @@ class Transitions:
     observation: jax.Array
     """[T, B, L, F] float32."""
     action: jax.Array
-    """[T, B, L] float32."""
+    """[T, B, L] float32 ([T, B, L, M] for 3D bodies, M actions per limb)."""
     reward: jax.Array
     """[T, B] float32."""
     next_observation: jax.Array
@@ -73,9 +73,10 @@ class ReplayBuffer:
         return self.data.reward.shape[1]
 
 
-def buffer_bytes(tasks: int, capacity: int, max_limbs: int, features: int) -> int:
-    """Bytes of a buffer of this shape: two observations, an action, a reward and a flag per row."""
-    per_row = 4 * (2 * max_limbs * features + max_limbs + 1) + 1
+def buffer_bytes(tasks: int, capacity: int, max_limbs: int, features: int, motors: int = 1) -> int:
+    """Bytes of a buffer of this shape: two observations, an action (``motors`` values per limb), a reward
+    and a flag per row."""
+    per_row = 4 * (2 * max_limbs * features + max_limbs * motors + 1) + 1
     return tasks * capacity * per_row
 
 
@@ -100,6 +101,7 @@ def check_buffer_fits(
     flag: str = "--iteration.capacity",
     flag_rows: int = 1,
     why: str = "",
+    motors: int = 1,
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
 
@@ -110,8 +112,9 @@ def check_buffer_fits(
         flag_rows: the rows that one of ``flag``'s units sets per task's row: 1 for rows per task, ``tasks``
             for a cap on the rows of all tasks together.
         why: why the buffers have ``capacity`` rows, appended to the report.
+        motors: actions per limb (3 for 3D bodies).
     """
-    needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features)
+    needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features, motors)
     usable = int(USABLE_FRACTION * free_bytes)
     runs = f"{seeds} seeds x " if seeds > 1 else ""
     report = (
@@ -119,7 +122,7 @@ def check_buffer_fits(
         f"{max_limbs} limbs x {features} features{why})"
     )
     if needed > usable:
-        fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features))
+        fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features, motors))
         raise MemoryError(
             f"{report} do not fit in {usable / GIB:.2f} GiB ({USABLE_FRACTION:.0%} of the "
             f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting * flag_rows:,}"
@@ -128,15 +131,17 @@ def check_buffer_fits(
 
 
 def init_buffer(
-    tasks: int, capacity: int, max_limbs: int, features: int, episode_ends: bool = False
+    tasks: int, capacity: int, max_limbs: int, features: int, episode_ends: bool = False, motors: int = 1
 ) -> ReplayBuffer:
     """An empty buffer (all zeros; every array its own buffer, so a jitted step may donate them); with
-    ``episode_ends`` it stores :attr:`Transitions.ended` too (n-step returns)."""
+    ``episode_ends`` it stores :attr:`Transitions.ended` too (n-step returns); ``motors`` actions per limb
+    (an action axis [M] after the limbs when more than 1)."""
     observation_shape = (tasks, capacity, max_limbs, features)
+    action_shape = (tasks, capacity, max_limbs) + ((motors,) if motors > 1 else ())
     return ReplayBuffer(
         data=Transitions(
             observation=jnp.zeros(observation_shape, jnp.float32),
-            action=jnp.zeros((tasks, capacity, max_limbs), jnp.float32),
+            action=jnp.zeros(action_shape, jnp.float32),
             reward=jnp.zeros((tasks, capacity), jnp.float32),
             next_observation=jnp.zeros(observation_shape, jnp.float32),
             terminated=jnp.zeros((tasks, capacity), bool),
