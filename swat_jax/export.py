@@ -8,7 +8,7 @@ which needs only jax and numpy, are :mod:`swat_jax.serving`::
     python -m swat_jax.export runs/walker-swat-seed0 -o walker.npz
 
     policy = swat_jax.serving.load("walker.npz")
-    actions = policy(observation, "walker_3_main")  # observation [batch, L, F] -> actions [batch, L]
+    actions = policy(observation, "walker_3_main")  # observation [batch, L, F] -> actions [batch, L] ([batch, L, 3] in 3D)
 """
 
 from __future__ import annotations
@@ -65,7 +65,8 @@ def serialize_actor(
 
     Returns:
         The serialised program ``policy(observation [b, L, F] float32, *structure fields) -> actions
-        [b, L] float32``, the structure fields as separate arguments in StructureBatch order.
+        [b, L] float32`` (``[b, L, M]`` for M > 1 actions per limb, 3D bodies), the structure fields as
+        separate arguments in StructureBatch order.
     """
 
     def policy(observation: jax.Array, *fields: jax.Array) -> jax.Array:

@@ -4,7 +4,7 @@
 a NumPy ``.npz`` archive (read with ``allow_pickle=False``) holding
 
 - ``program``: the serialised :class:`jax.export.Exported` (uint8 bytes): ``policy(observation [b, L, F],
-  *structure fields) -> actions [b, L]``, with the parameters baked in and a symbolic batch size;
+  *structure fields) -> actions [b, L]`` ([b, L, 3] for 3D bodies), with the parameters baked in and a symbolic batch size;
 - ``metadata``: a JSON string: format and version, the jax version that wrote the program, algo, env,
   env steps, max limbs, observation features, the order of the structure inputs, the bodies stored
   below and the platforms compiled for;
@@ -12,7 +12,7 @@ a NumPy ``.npz`` archive (read with ``allow_pickle=False``) holding
   [K, L, ...] in the order of ``metadata["bodies"]``, so a body can be named instead of encoded::
 
     policy = swat_jax.serving.load("walker.npz")
-    actions = policy(observation, "walker_3_main")  # observation [batch, L, F] -> actions [batch, L]
+    actions = policy(observation, "walker_3_main")  # observation [batch, L, F] -> actions [batch, L] ([batch, L, 3] in 3D)
 """
 
 from __future__ import annotations
@@ -56,7 +56,8 @@ def policy_path(path: str | Path) -> Path:
 class ExportedPolicy:
     """A policy read from an exported file; calling it needs only jax and numpy.
 
-    ``policy(observation, structure)`` maps observation [batch, L, F] to actions [batch, L] in [-1, 1]
+    ``policy(observation, structure)`` maps observation [batch, L, F] to actions [batch, L] ([batch, L, 3]
+    for 3D bodies) in [-1, 1]
     (zero on padded limbs), where ``structure`` is a body name of the file, or the structure of one body
     padded to L limbs: a StructureBatch slice or a mapping from field name to array. Each new batch size
     compiles once.
@@ -102,7 +103,7 @@ class ExportedPolicy:
 
     def __call__(self, observation: Any, structure: StructureInput) -> jax.Array:
         """observation [batch, L, F] (rows beyond the body's limbs are ignored), one body's structure ->
-        actions [batch, L] float32 in [-1, 1], zero on padded limbs."""
+        actions [batch, L] ([batch, L, 3] for 3D bodies) float32 in [-1, 1], zero on padded limbs."""
         observation = np.asarray(observation) if not isinstance(observation, jax.Array) else observation
         expected = (self.max_limbs, self.observation_features)
         if observation.ndim != 3 or tuple(observation.shape[1:]) != expected or observation.shape[0] < 1:

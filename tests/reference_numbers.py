@@ -115,6 +115,26 @@ def summarize(model: mujoco.MjModel) -> dict:
     return dict(option=option, bodies=bodies, joints=joints, geoms=geoms, motors=motors, sites=sites)
 
 
+def assert_same_numbers(ours, reference, where: str) -> None:
+    """Two :func:`summarize` results (or parts of them) agree: names and integers exactly, numbers to 2e-5,
+    orientations up to the sign of the quaternion (q and -q are the same rotation)."""
+    if isinstance(reference, dict):
+        assert ours.keys() == reference.keys(), where
+        for key in reference:
+            assert_same_numbers(ours[key], reference[key], f"{where}.{key}")
+    elif isinstance(reference, list) and reference and isinstance(reference[0], dict):
+        assert len(ours) == len(reference), f"{where}: {len(ours)} entries, reference has {len(reference)}"
+        for index, (a, b) in enumerate(zip(ours, reference, strict=True)):
+            assert_same_numbers(a, b, f"{where}[{index}]")
+    elif where.endswith("quat"):
+        sign = 1.0 if np.dot(ours, reference) >= 0 else -1.0
+        np.testing.assert_allclose(sign * np.asarray(ours), reference, atol=2e-5, err_msg=where)
+    elif isinstance(reference, (list, float)):
+        np.testing.assert_allclose(ours, reference, atol=2e-5, err_msg=where)
+    else:
+        assert ours == reference, where
+
+
 def extract(reference_dir: Path) -> dict[str, dict]:
     """Summaries of every reference body; fixes the malformed hopper foot position on the way."""
     summaries = {}

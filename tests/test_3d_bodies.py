@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from reference_numbers import summarize
+from reference_numbers import assert_same_numbers, summarize
 from sgrl_fixture import exact_data, recorded_bodies, recording
 
 from swat_jax.envs import BodyEnv
@@ -28,24 +28,6 @@ from swat_jax.morphology.paths import MORPHOLOGY_DIR
 
 REFERENCE = json.loads((Path(__file__).parent / "data" / "reference_numbers_3d.json").read_text())
 THREE_D = tuple(name for name in benchmark_names() if name.startswith("3d_"))
-
-
-def _close(ours, reference, where: str) -> None:
-    if isinstance(reference, dict):
-        assert ours.keys() == reference.keys(), where
-        for key in reference:
-            _close(ours[key], reference[key], f"{where}.{key}")
-    elif isinstance(reference, list) and reference and isinstance(reference[0], dict):
-        assert len(ours) == len(reference), f"{where}: {len(ours)} entries, reference has {len(reference)}"
-        for index, (a, b) in enumerate(zip(ours, reference, strict=True)):
-            _close(a, b, f"{where}[{index}]")
-    elif where.endswith(".quat"):  # q and -q are the same rotation
-        sign = 1.0 if np.dot(ours, reference) >= 0 else -1.0
-        np.testing.assert_allclose(sign * np.asarray(ours), reference, atol=2e-5, err_msg=where)
-    elif isinstance(reference, (list, float)):
-        np.testing.assert_allclose(ours, reference, atol=2e-5, err_msg=where)
-    else:
-        assert ours == reference, where
 
 
 def test_every_3d_body_of_the_benchmark_is_shipped():
@@ -61,7 +43,7 @@ def test_3d_body_compiles_to_the_benchmarks_numbers(name):
     import mujoco
 
     ours = summarize(mujoco.MjModel.from_xml_path(str(MORPHOLOGY_DIR / f"{name}.xml")))
-    _close(ours, REFERENCE[name.replace("_v2", "")], name)
+    assert_same_numbers(ours, REFERENCE[name.replace("_v2", "")], name)
 
 
 def test_load_describes_a_3d_body():

@@ -76,10 +76,12 @@ def hopper_3d_folder(tmp_path_factory):
 
 
 def test_a_3d_run_trains_and_its_evaluation_records_the_targets(hopper_3d_folder, tmp_path):
-    """A tiny run on a folder holding one 3D body: its replay holds [rows, L, 3] actions, the policy it
-    saves acts with three values per limb, and a recorded evaluation keeps the target of every pose."""
+    """A tiny run on a folder holding one 3D body: the policy it saves acts with three values per limb (as
+    loaded, and exported to a file), and a recorded evaluation keeps the target of every pose."""
     from swat_jax.eval import evaluate
+    from swat_jax.export import export_policy
     from swat_jax.runs.trained import load_policy
+    from swat_jax.serving import load as load_exported
     from swat_jax.train import train
 
     run_dir = tmp_path / "run"
@@ -91,3 +93,11 @@ def test_a_3d_run_trains_and_its_evaluation_records_the_targets(hopper_3d_folder
     assert result.qpos.shape[0] == result.lengths[0, 0] == result.targets.shape[0] > 1
     np.testing.assert_array_equal(result.targets, np.broadcast_to(result.targets[0], result.targets.shape))
     assert np.linalg.norm(result.targets[0]) == pytest.approx(10_000, rel=1e-5), "a far target stays put"
+
+    export_policy(run_dir, tmp_path / "policy.npz", platforms=("cpu",))
+    exported = load_exported(tmp_path / "policy.npz")
+    observation = np.random.default_rng(0).normal(size=(2, 3, FEATURES)).astype(np.float32)
+    one = jax.tree.map(lambda leaf: leaf[0], policy.task_set([body]).structure)
+    actions = np.asarray(exported(observation, one))
+    assert actions.shape == (2, 3, 3)
+    np.testing.assert_allclose(actions, policy.act(jnp.asarray(observation), one), atol=1e-6)

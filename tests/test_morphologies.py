@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from reference_numbers import summarize
+from reference_numbers import assert_same_numbers, summarize
 
 from swat_jax.morphology import benchmark_names, get_set, load
 from swat_jax.morphology.generate import VARIANTS, generate
@@ -31,21 +31,6 @@ LIMB_COUNTS = {
 SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
 
 
-def _close(ours, reference, where: str) -> None:
-    if isinstance(reference, dict):
-        assert ours.keys() == reference.keys(), where
-        for key in reference:
-            _close(ours[key], reference[key], f"{where}.{key}")
-    elif isinstance(reference, list) and reference and isinstance(reference[0], dict):
-        assert len(ours) == len(reference), f"{where}: {len(ours)} entries, reference has {len(reference)}"
-        for index, (a, b) in enumerate(zip(ours, reference, strict=True)):
-            _close(a, b, f"{where}[{index}]")
-    elif isinstance(reference, (list, float)):
-        np.testing.assert_allclose(ours, reference, atol=2e-5, err_msg=where)
-    else:
-        assert ours == reference, where
-
-
 def test_every_benchmark_body_is_shipped():
     planar = [name for name in benchmark_names() if not name.startswith("3d_")]
     assert set(planar) == set(REFERENCE) == set(LIMB_COUNTS)
@@ -62,7 +47,7 @@ def test_body_matches_the_benchmark(name):
     for joint in (*ours["joints"], *reference["joints"]):
         if joint["type"] == SLIDE:
             joint.pop("pos")
-    _close(ours, reference, name)
+    assert_same_numbers(ours, reference, name)
 
 
 def test_generator_reproduces_the_checked_in_variants():

@@ -28,6 +28,8 @@ KINEMATIC_FEATURES = 12
 """Position, linear velocity, angular velocity and orientation: the slots before the limb type."""
 THREE_D_FEATURES = 36
 """The slots of a 3D limb's observation before its limb type (:func:`limb_observation_3d`)."""
+DIRECTION_EPSILON = 1e-9
+"""The direction to a target the torso stands on is 0, not NaN."""
 ABSENT_JOINT = 0.5
 """What a 3D limb observes for the scaled angle and range ends of a hinge slot it does not have (the
 torso's, in SGRL's observation)."""
@@ -213,7 +215,7 @@ def limb_observation_3d(
     has = layout.has_joint
     linear, angular = frame_velocities(xpos, cvel, root_com)
     direction = target - xpos[0, :2]
-    direction = direction / jnp.linalg.norm(direction)
+    direction = direction / jnp.maximum(jnp.linalg.norm(direction), DIRECTION_EPSILON)
     angle = jnp.where(has, qpos[layout.joint_qpos_address], 0.0)
     low, high = layout.joint_range[..., 0], layout.joint_range[..., 1]
     scaled = (jnp.degrees(angle) - low) / jnp.where(has, high - low, 1.0)

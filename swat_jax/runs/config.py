@@ -169,7 +169,7 @@ class TrainConfig:
     """Train one policy on every body of an environment set with TD3 (SWAT, Hong et al. 2022)."""
 
     env: str = host_only("animal_walkers")
-    """Environment set (hopper, walker, cheetah, humanoid, wh, whh, cwh, cwhh, animal_walkers) or a folder of MJCF files; trains on its train split."""
+    """Environment set (hopper, walker, cheetah, humanoid, wh, whh, cwh, cwhh, animal_walkers; in 3D 3d_hopper, 3d_walker, 3d_humanoid, 3d_cheetah, 3d_whh, 3d_cwhh, 3d_*_v2: python -m swat_jax.morphology list) or a folder of MJCF files; trains on its train split."""
     split: Split = host_only("train")
     """Bodies of --env to train on: its train bodies, its held-out test bodies (fine-tuning on unseen bodies, paper section 5.3) or all."""
     bodies: tuple[str, ...] = host_only(())
