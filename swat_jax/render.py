@@ -1,6 +1,6 @@
 """Videos of a body moving: roll out an environment, draw each state off-screen, write MP4 or GIF.
 
-``rollout`` simulates one body under random or zero actions on MJX, ``render_frames`` draws a sequence of
+``rollout`` simulates one body under random or zero actions, ``render_frames`` draws a sequence of
 poses with a side camera that follows the torso (and, for a 3D body, an arrow on the floor from the torso
 toward its target, and the target itself when it is near), ``write_video`` writes the frames, and
 ``render_rollout`` does both with the body's own frame rate. From the shell::
@@ -29,6 +29,7 @@ import tyro
 from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.envs.body import BodyEnv, EnvState
+from swat_jax.envs.physics import Physics
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.picture import (
     MAX_GEOMS,
@@ -147,7 +148,7 @@ def render_frames(
 
 
 TARGET_RGBA = np.array([0.9, 0.2, 0.2, 1.0], np.float32)
-TARGET_ARROW = 1.0
+TARGET_ARROW = 1.5
 """Metres of the arrow toward the target (shorter when the target is nearer)."""
 TARGET_SHOWN = 30.0
 """Targets nearer than this (metres) are drawn as a marker besides the arrow."""
@@ -166,7 +167,7 @@ def draw_target(scene: mujoco.MjvScene, torso: np.ndarray, target: np.ndarray) -
     mujoco.mjv_initGeom(
         arrow, mujoco.mjtGeom.mjGEOM_ARROW, np.zeros(3), np.zeros(3), np.eye(3).ravel(), TARGET_RGBA
     )
-    mujoco.mjv_connector(arrow, mujoco.mjtGeom.mjGEOM_ARROW, 0.03, start, end)
+    mujoco.mjv_connector(arrow, mujoco.mjtGeom.mjGEOM_ARROW, 0.05, start, end)
     scene.ngeom += 1
     if distance < TARGET_SHOWN:
         marker = scene.geoms[scene.ngeom]
@@ -334,6 +335,8 @@ class RenderCommand:
     """Frame height in pixels."""
     fps: int | None = None
     """Playback frames per second; None: real time (1 / the body's control step), at most 50 for GIF."""
+    physics: Physics = "auto"
+    """Physics of the rollout: auto (MuJoCo C on a CPU, MJX on a GPU), c, jax or warp."""
 
     def __post_init__(self) -> None:
         for flag in ("steps", "width", "height"):
@@ -346,7 +349,7 @@ def run(command: RenderCommand) -> str:
     """Roll out, render and write the video the command asks for; returns what was written."""
     video_path(command.output)
     gl_backend()
-    env = BodyEnv(command.body)
+    env = BodyEnv(command.body, physics=command.physics)
     fps = default_fps(env.morphology, command.output) if command.fps is None else command.fps
     states = rollout(env, command.steps, seed=command.seed, policy=command.policy)
     path = render_rollout(

@@ -228,3 +228,20 @@ def test_3d_body_on_mjx_follows_mujoco_c():
         np.testing.assert_allclose(mjx_state.observation, c_state.observation, atol=1e-4)
         np.testing.assert_allclose(mjx_state.reward, c_state.reward, atol=1e-5)
         assert bool(mjx_state.terminated) == bool(c_state.terminated)
+
+
+def test_variants_of_a_3d_body_step_in_one_environment(tmp_path):
+    """Drawn variants of a 3D body (three hinges per limb) run through the body's environment: each reads
+    its own hinge ranges into the observation."""
+    from swat_jax.morphology.variants import Variation, write_variants
+
+    variants = write_variants("3d_hopper_3_shin", 2, Variation(0.2, seed=1), tmp_path)
+    env = BodyEnv("3d_hopper_3_shin", physics="c", variants=variants)
+    table = env.variant_table()
+    assert table.joint_range.shape == (2, 3, 3, 2)
+    for row, variant in enumerate(variants):
+        state = env.reset(jax.random.key(0), jax.tree.map(lambda leaf, row=row: leaf[row], table))
+        state = env.step(state, jnp.zeros(env.action_shape))
+        ends = np.asarray(state.observation[1, 27:36]).reshape(3, 3)[:, 1:]  # the thigh's range ends
+        np.testing.assert_allclose(ends, (180.0 + np.array(variant.joint_ranges[1])) / 360.0, atol=1e-6)
+        assert variant.family == env.morphology.family, "a variant keeps its body's termination"

@@ -110,10 +110,11 @@ class Critic(nn.Module):
         """limb_obs [batch, limbs, features], actions [batch, limbs] or [batch, limbs, M] -> (q1, q2), each
         [batch, limbs], or [batch, limbs, atoms] logits with atoms (zero on padded limbs)."""
         limb_obs = normalised(self.config, limb_obs, structure)
+        actions = limb_action_features(actions)
         if self.config.architecture == "smp":
             q_values = SharedModularCritic(self.config, name="q")(limb_obs, actions, structure)
         else:
-            limb_inputs = jnp.concatenate([limb_obs, limb_action_features(actions)], axis=-1)
+            limb_inputs = jnp.concatenate([limb_obs, actions], axis=-1)
             q_values = (
                 limb_network(self.config, name, max(1, self.atoms))(limb_inputs, structure)
                 for name in ("q1", "q2")

@@ -222,9 +222,8 @@ class SharedModularCritic(nn.Module):
     def __call__(
         self, limb_obs: jax.Array, actions: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:
-        """limb_obs [batch, limbs, features], actions [batch, limbs] or [batch, limbs, M] -> per-limb (q1,
-        q2), each [batch, limbs] (padded limbs unspecified)."""
-        actions = actions.reshape(*limb_obs.shape[:2], -1)
+        """limb_obs [batch, limbs, features], actions [batch, limbs, M] (M = 1 for planar bodies) -> per-limb
+        (q1, q2), each [batch, limbs] (padded limbs unspecified)."""
         limb_inputs = jnp.concatenate([limb_obs, actions], axis=-1)
         up_messages, from_parent = MessagePassing(self.config, name="messages")(limb_inputs, structure)
         head_inputs = jnp.concatenate([up_messages, actions, from_parent], axis=-1)
