@@ -1,10 +1,12 @@
 """Learning on a 3D set: SWAT, AMORPHEUS and SMP with one preset, beside the random-action return.
 
-Trains each algorithm on the set (``--seeds`` seeds in one program, one run directory each, resumed
-where a run stopped), measures the random-action return of every body (uniform actions in [-1, 1],
+Trains each algorithm on the set (``--seeds`` seeds in one program, one run directory each; a run
+directory that exists is resumed, or left as it is when it has finished, whatever budget it was started
+with), measures the random-action return of every body (uniform actions in [-1, 1],
 ``--random-episodes`` episodes per body on MuJoCo C), and writes under ``--out``: the runs, the curves
 (``curves.png``, mean over the set's bodies, a band of ± standard error over seeds), and ``RESULTS.md``
-with the last curve point of each run beside the random return, per body and over the set.
+with each run's curve point at the smallest budget of the runs and at its own last point, beside the
+random return, per body and over the set.
 
     python -m experiments.three_d [--env 3d_hopper] [--steps 40000] [--seeds 4] [--out DIR]
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -72,12 +75,16 @@ def random_returns(body: str, episodes: int, seed: int = 0) -> np.ndarray:
     return np.asarray(jax.jit(jax.vmap(episode))(jax.random.split(jax.random.key(seed), episodes)))
 
 
-def last_point(run_dir: Path, bodies: Sequence[str]) -> dict[str, tuple[float, float]]:
-    """Per body and "set" (the mean over bodies): mean and std over seeds of the last curve point."""
+def curve_point(
+    run_dir: Path, bodies: Sequence[str], budget: int | None = None
+) -> dict[str, tuple[float, float]]:
+    """Per body and "set" (the mean over bodies): mean and std over seeds of the curve point at the
+    largest step not beyond ``budget`` (None: the last point)."""
     with open(run_dir / "metrics.csv") as file:
         rows = list(csv.DictReader(file))
-    last_step = max(int(row["env_steps"]) for row in rows)
-    final = [row for row in rows if int(row["env_steps"]) == last_step]
+    steps = [int(row["env_steps"]) for row in rows]
+    chosen = max(step for step in steps if budget is None or step <= budget)
+    final = [row for row, step in zip(rows, steps, strict=True) if step == chosen]
     per_seed = {body: [float(row[f"return/{body}"] or "nan") for row in final] for body in bodies}
     per_seed["set"] = list(np.nanmean([per_seed[body] for body in bodies], axis=0))
     return {key: (float(np.nanmean(values)), float(np.nanstd(values))) for key, values in per_seed.items()}
@@ -88,7 +95,7 @@ def train(command: ThreeDCommand, algorithm: str) -> Path:
     run_dir = command.out / "runs" / algorithm
     arguments = [sys.executable, "-m", "swat_jax.train"]
     if (run_dir / "config.json").exists():
-        arguments += ["--resume", str(run_dir)]
+        arguments += ["--resume", str(run_dir)]  # a finished run stops at once
     else:
         arguments += [
             "--preset", command.preset, "--env", command.env, "--algo", algorithm,
@@ -98,31 +105,45 @@ def train(command: ThreeDCommand, algorithm: str) -> Path:
     return run_dir
 
 
+def run_budget(run_dir: Path) -> tuple[int, int]:
+    """(seeds, steps) a run directory was trained with (its config.json)."""
+    config = json.loads((run_dir / "config.json").read_text())
+    return int(config["seeds"]), int(config["steps"])
+
+
 def report(command: ThreeDCommand, runs: dict[str, Path], random: dict[str, np.ndarray]) -> str:
-    """RESULTS.md: the last curve point of each run beside the random-action return."""
+    """RESULTS.md: each run's curve point at the smallest budget of the runs and at its last point, beside
+    the random-action return."""
     bodies = get_set(command.env).train
-    finals = {algorithm: last_point(run_dir, bodies) for algorithm, run_dir in runs.items()}
+    budgets = {algorithm: run_budget(run_dir) for algorithm, run_dir in runs.items()}
+    common = min(steps for _, steps in budgets.values())
+    columns = {f"{a} at {common:,}": curve_point(run_dir, bodies, common) for a, run_dir in runs.items()}
+    columns |= {
+        f"{a} at {steps:,}": curve_point(run_dir, bodies)
+        for a, run_dir in runs.items()
+        if (steps := budgets[a][1]) > common
+    }
     random_set = float(np.mean([random[body].mean() for body in bodies]))
-    header = "| body | random actions | " + " | ".join(finals) + " |"
+    runs_text = "; ".join(f"{a}: {seeds} seeds, {steps:,} steps" for a, (seeds, steps) in budgets.items())
     lines = [
-        f"# Learning on {get_set(command.env).title}: {', '.join(finals)} with the `{command.preset}` preset",
+        f"# Learning on {get_set(command.env).title}: {', '.join(runs)} with the `{command.preset}` preset",
         "",
-        f"`python -m experiments.three_d --env {command.env} --steps {command.steps} --seeds {command.seeds}`"
-        f" on {cpu_model()} ({host_cores()} cores), MuJoCo C physics. Each run: {command.seeds} seeds in one"
-        f" program, {command.steps:,} environment steps summed over the bodies. Cells: the last curve point"
-        " (the training episodes' mean return over the last metrics interval), mean ± std over seeds; random"
-        f" actions: uniform in [-1, 1], {command.random_episodes} episodes per body, mean ± std.",
+        f"`python -m experiments.three_d --env {command.env}` on {cpu_model()} ({host_cores()} cores), MuJoCo"
+        f" C physics; each run's seeds in one program, its environment steps summed over the bodies ({runs_text})."
+        " Cells: the last curve point (the training episodes' mean return over a metrics interval) not"
+        " beyond the step named, mean ± std over seeds; random actions: uniform in [-1, 1],"
+        f" {command.random_episodes} episodes per body, mean ± std.",
         "",
         "![curves](curves.png)",
         "",
-        header,
-        "|" + "---|" * (2 + len(finals)),
+        "| body | random actions | " + " | ".join(columns) + " |",
+        "|" + "---|" * (2 + len(columns)),
     ]
     for body in (*bodies, "set"):
         chance = (
             f"{random_set:.1f}" if body == "set" else f"{random[body].mean():.1f} ± {random[body].std():.1f}"
         )
-        cells = " | ".join(f"{finals[a][body][0]:.1f} ± {finals[a][body][1]:.1f}" for a in finals)
+        cells = " | ".join(f"{column[body][0]:.1f} ± {column[body][1]:.1f}" for column in columns.values())
         lines.append(f"| {body if body != 'set' else '**mean over the bodies**'} | {chance} | {cells} |")
     return "\n".join(lines) + "\n"
 
