@@ -245,3 +245,18 @@ def test_variants_of_a_3d_body_step_in_one_environment(tmp_path):
         ends = np.asarray(state.observation[1, 27:36]).reshape(3, 3)[:, 1:]  # the thigh's range ends
         np.testing.assert_allclose(ends, (180.0 + np.array(variant.joint_ranges[1])) / 360.0, atol=1e-6)
         assert variant.family == env.morphology.family, "a variant keeps its body's termination"
+
+
+def test_a_folder_mixing_planar_and_3d_bodies_is_refused(tmp_path):
+    """Both have four limb types, but 19 and 41 observation values per limb: the folder names both."""
+    import shutil
+
+    from swat_jax.morphology import MorphologyError
+
+    for name in ("hopper_3", "3d_hopper_3_shin"):
+        shutil.copy(MORPHOLOGY_DIR / f"{name}.xml", tmp_path)
+    shutil.copytree(MORPHOLOGY_DIR / "assets", tmp_path / "assets")
+    with pytest.raises(MorphologyError, match="planar and 3D") as error:
+        get_set(tmp_path)
+    assert "hopper_3.xml: family hopper, 4 limb types, planar" in str(error.value)
+    assert "3d_hopper_3_shin.xml: family 3d_hopper, 4 limb types, 3D" in str(error.value)
