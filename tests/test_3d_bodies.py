@@ -278,3 +278,44 @@ def test_a_folder_mixing_planar_and_3d_bodies_is_refused(tmp_path):
         get_set(tmp_path)
     assert "hopper_3.xml: family hopper, 4 limb types, planar" in str(error.value)
     assert "3d_hopper_3_shin.xml: family 3d_hopper, 4 limb types, 3D" in str(error.value)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            ('<joint name="root" type="free"', '<joint name="root" type="slide" axis="1 0 0"'),
+            "needs exactly one joint, a free joint",
+        ),
+        (
+            (
+                '<joint name="thigh_joint_z"',
+                '<joint name="thigh_joint_w" axis="1 1 0" range="-5 5"/>\n<joint name="thigh_joint_z"',
+            ),
+            "at most 3 hinges",
+        ),
+        (
+            (
+                'gear="200"/>\n    <motor joint="foot_joint_z" gear="200"',
+                'gear="200"/>\n    <motor joint="foot_joint_z" gear="0"',
+            ),
+            None,
+        ),
+    ],
+)
+def test_3d_body_files_are_checked(tmp_path, edit, message):
+    """A 3D family's body needs a free torso and at most three hinges per limb; gear-0 motors are allowed
+    beside a driven hinge (the benchmark's own)."""
+    import shutil
+
+    from swat_jax.morphology import MorphologyError
+
+    text = (MORPHOLOGY_DIR / "3d_hopper_3_shin.xml").read_text()
+    assert edit[0] in text
+    (tmp_path / "body.xml").write_text(text.replace(edit[0], edit[1]))
+    shutil.copytree(MORPHOLOGY_DIR / "assets", tmp_path / "assets")
+    if message is None:
+        assert load(tmp_path / "body.xml").limb_motors[2] == (3, 4, 5)
+    else:
+        with pytest.raises(MorphologyError, match=message):
+            load(tmp_path / "body.xml")
