@@ -54,10 +54,14 @@ def test_samples_come_from_filled_rows_of_their_own_task():
     assert not np.array_equal(reward[0] % 1000, reward[1] % 1000), "tasks sample independently"
 
 
-def test_buffer_bytes_counts_every_array():
-    buffer = init_buffer(TASKS, CAPACITY, LIMBS, FEATURES)
+@pytest.mark.parametrize(("motors", "episode_ends"), [(1, False), (1, True), (3, False)])
+def test_buffer_bytes_counts_every_array(motors, episode_ends):
+    """Planar, with the n-step returns' episode-end flag, and with a 3D body's three actions per limb."""
+    buffer = init_buffer(TASKS, CAPACITY, LIMBS, FEATURES, episode_ends, motors)
     arrays = jax.tree_util.tree_leaves(buffer.data)
-    assert buffer_bytes(TASKS, CAPACITY, LIMBS, FEATURES) == sum(a.nbytes for a in arrays)
+    assert buffer_bytes(TASKS, CAPACITY, LIMBS, FEATURES, motors, episode_ends) == sum(
+        a.nbytes for a in arrays
+    )
 
 
 def test_buffer_check_reports_gib_and_names_the_flag_to_lower():

@@ -73,10 +73,12 @@ class ReplayBuffer:
         return self.data.reward.shape[1]
 
 
-def buffer_bytes(tasks: int, capacity: int, max_limbs: int, features: int, motors: int = 1) -> int:
-    """Bytes of a buffer of this shape: two observations, an action (``motors`` values per limb), a reward
-    and a flag per row."""
-    per_row = 4 * (2 * max_limbs * features + max_limbs * motors + 1) + 1
+def buffer_bytes(
+    tasks: int, capacity: int, max_limbs: int, features: int, motors: int = 1, episode_ends: bool = False
+) -> int:
+    """Bytes of a buffer of this shape (:func:`init_buffer`'s arguments): two observations, an action
+    (``motors`` values per limb), a reward and a flag per row, and with ``episode_ends`` a second flag."""
+    per_row = 4 * (2 * max_limbs * features + max_limbs * motors + 1) + 1 + int(episode_ends)
     return tasks * capacity * per_row
 
 
@@ -102,6 +104,7 @@ def check_buffer_fits(
     flag_rows: int = 1,
     why: str = "",
     motors: int = 1,
+    episode_ends: bool = False,
 ) -> str:
     """Host-side check before allocating: a one-line size report, or MemoryError saying what to lower.
 
@@ -112,9 +115,9 @@ def check_buffer_fits(
         flag_rows: the rows that one of ``flag``'s units sets per task's row: 1 for rows per task, ``tasks``
             for a cap on the rows of all tasks together.
         why: why the buffers have ``capacity`` rows, appended to the report.
-        motors: actions per limb (3 for 3D bodies).
+        motors, episode_ends: as :func:`init_buffer`'s (3D bodies; n-step returns).
     """
-    needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features, motors)
+    needed = seeds * buffer_bytes(tasks, capacity, max_limbs, features, motors, episode_ends)
     usable = int(USABLE_FRACTION * free_bytes)
     runs = f"{seeds} seeds x " if seeds > 1 else ""
     report = (
@@ -122,7 +125,7 @@ def check_buffer_fits(
         f"{max_limbs} limbs x {features} features{why})"
     )
     if needed > usable:
-        fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features, motors))
+        fitting = usable // (seeds * buffer_bytes(tasks, 1, max_limbs, features, motors, episode_ends))
         raise MemoryError(
             f"{report} do not fit in {usable / GIB:.2f} GiB ({USABLE_FRACTION:.0%} of the "
             f"{free_bytes / GIB:.2f} GiB free); lower {flag} to at most {fitting * flag_rows:,}"
