@@ -59,13 +59,16 @@ def make_evaluation(
         # vmap broadcasts the start to every seed and leaves a Warp state's shared buffers unbatched.
         states = jax.vmap(lambda _: start)(jnp.arange(seeds))
         shape = (seeds, env.num_bodies, env.copies)
+
+        def first_rows(value: jax.Array | None, width: int) -> jax.Array:
+            """A track [max_steps + 1, width] holding copy 0's ``value`` [n, width] in row 0; [0, width] when
+            nothing is recorded (or the body has no such value: a planar body's target)."""
+            rows = max_steps + 1 if record and value is not None else 0
+            track = jnp.zeros((rows, width))
+            return track if value is None else track.at[:1].set(value[:1])
+
         tracks = tuple(
-            (
-                jnp.zeros((max_steps + 1 if record else 0, body.mj_model.nq)).at[:1].set(data.data.qpos[:1]),
-                jnp.zeros((max_steps + 1 if record and body.task else 0, 2))
-                .at[:1]
-                .set(data.target[:1] if record and body.task else jnp.zeros((1, 2))),
-            )
+            (first_rows(data.data.qpos, body.mj_model.nq), first_rows(data.target, 2))
             for body, data in zip(env.envs, start.bodies, strict=True)
         )
 
@@ -81,13 +84,15 @@ def make_evaluation(
             lengths = lengths + (~finished).astype(jnp.int32)
             finished = finished | result.terminated | result.truncated
             if record:
+
+                def extended(track: jax.Array, value: jax.Array | None, k: int) -> jax.Array:
+                    """``track`` with seed 0's copy 0's ``value`` in row t + 1 (0 once its episode ended)."""
+                    if value is None:
+                        return track
+                    return track.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, value[0, 0]))
+
                 tracks = tuple(
-                    (
-                        poses.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.data.qpos[0, 0])),
-                        targets
-                        if body.target is None
-                        else targets.at[t + 1].set(jnp.where(finished[0, k, 0], 0.0, body.target[0, 0])),
-                    )
+                    (extended(poses, body.data.qpos, k), extended(targets, body.target, k))
                     for k, ((poses, targets), body) in enumerate(zip(tracks, next_states.bodies, strict=True))
                 )
             return t + 1, next_states, finished, returns, lengths, tracks
