@@ -7,6 +7,7 @@ or the actor's actions against the exact answer.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -205,3 +206,33 @@ def test_actor_and_targets_update_every_second_step():
     assert not unchanged(state.actor_params, initial.actor_params), "after two updates the actor has moved"
     assert not unchanged(state.target_critic_params, initial.target_critic_params)
     assert int(state.critic_steps) == 2
+
+
+@pytest.mark.parametrize("clipped", [True, False])
+def test_the_target_bootstraps_from_the_lower_or_the_mean_of_the_two_target_critics(clipped):
+    """Clipped double Q: y = r + discount * min(Q1', Q2'); without it y = r + discount * (Q1' + Q2') / 2.
+    The two critics' initial weights differ, so the two targets differ by half their gap."""
+    base = learner()
+    td3 = Learner(base.actor, base.critic, dataclasses.replace(base.config, clipped_double_q=clipped))
+    state = td3.init(jax.random.PRNGKey(0))
+    batch = jax.tree.map(
+        lambda leaf: leaf[0], random_batch(jax.random.PRNGKey(3), reward=0, terminated=False)
+    )
+    structure = jax.tree.map(lambda leaf: leaf[0], STRUCTURE)
+    no_noise = jnp.zeros(batch.action.shape)
+    loss = td3._task_critic_loss(
+        state.critic_params, state.target_actor_params, state.target_critic_params, batch, structure, no_noise
+    )
+    next_action = jnp.where(
+        structure.limb_mask,
+        td3.actor.apply(state.target_actor_params, batch.next_observation, structure),
+        0.0,
+    )
+    next1, next2 = td3._q_values(state.target_critic_params, batch.next_observation, next_action, structure)
+    gap = np.abs(np.asarray(next1 - next2))[:, MASK[0]]
+    assert gap.mean() > 1e-2, "the probe needs two target critics that disagree"
+    next_value = jnp.minimum(next1, next2) if clipped else (next1 + next2) / 2
+    target = batch.reward[:, None] + td3.config.discount * next_value
+    q1, q2 = td3._q_values(state.critic_params, batch.observation, batch.action, structure)
+    squared = np.where(MASK[0], np.asarray((q1 - target) ** 2 + (q2 - target) ** 2), 0.0)
+    assert float(loss) == pytest.approx(squared.sum() / (MASK[0].sum() * BATCH), rel=1e-5)

@@ -13,7 +13,8 @@ the original SWAT code does (its ``TD3.py``), or with ``atoms`` a distribution o
     loss = mean over batch and real limbs of (Q1_l - y_l)^2 + (Q2_l - y_l)^2
 
 with a' the target policy's action plus clipped Gaussian noise (target policy smoothing), so truncated
-transitions bootstrap and terminated ones do not. With ``n_step`` N > 1, r is the sum of up to N discounted
+transitions bootstrap and terminated ones do not; without ``clipped_double_q`` the min is the two target
+critics' mean (FastTD3's option). With ``n_step`` N > 1, r is the sum of up to N discounted
 rewards of the copy's next steps and discount is discount^m for the m summed (cut at the episode's end;
 ``Transitions.bootstrap``). SMP's critic sums its limbs' values into one Q per
 sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same formulas then hold with
@@ -72,6 +73,10 @@ class TD3Config:
     """Smallest atom of the distributional critic: returns below it count as it."""
     value_max: float = 400.0
     """Largest atom of the distributional critic: returns above it count as it."""
+    clipped_double_q: bool = True
+    """True: the TD target bootstraps from the lower of the two target critics (TD3's clipped double Q);
+    False: from their mean (FastTD3's option, less pessimistic; with atoms, the mean of the two
+    distributions)."""
     n_step: int = 1
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
 
@@ -287,7 +292,11 @@ class Learner:
         target_q1, target_q2 = self._q_values(
             target_critic_params, batch.next_observation, next_action, structure
         )
-        next_value = jnp.minimum(target_q1, target_q2)
+        next_value = (
+            jnp.minimum(target_q1, target_q2)
+            if self.config.clipped_double_q
+            else (target_q1 + target_q2) / 2.0
+        )
         target = jax.lax.stop_gradient(batch.reward[:, None] + continues * next_value)
         q1, q2 = self._q_values(critic_params, batch.observation, batch.action, structure)
         squared = (q1 - target) ** 2 + (q2 - target) ** 2
@@ -303,8 +312,9 @@ class Learner:
         continues: jax.Array,
     ) -> jax.Array:
         """[B, L] cross-entropy of both critics' distributions against the target: of the two target
-        critics, the distribution whose mean is lower (the clipped double Q of TD3), its atoms moved to
-        r + continues * z and projected back onto the support (:func:`project`); ``continues`` [B, 1]."""
+        critics, the distribution whose mean is lower (the clipped double Q of TD3; without it, the mean of
+        the two distributions), its atoms moved to r + continues * z and projected back onto the support
+        (:func:`project`); ``continues`` [B, 1]."""
         support = self.support()
         next1, next2 = (
             jax.nn.softmax(logits)
@@ -312,9 +322,13 @@ class Learner:
                 target_critic_params, batch.next_observation, next_action, structure
             )
         )
-        lower = (next1 @ support < next2 @ support)[..., None]
+        if self.config.clipped_double_q:
+            lower = (next1 @ support < next2 @ support)[..., None]
+            next_distribution = jnp.where(lower, next1, next2)
+        else:
+            next_distribution = (next1 + next2) / 2.0
         moved = batch.reward[:, None, None] + continues[..., None] * support
-        target = jax.lax.stop_gradient(project(jnp.where(lower, next1, next2), moved, support))
+        target = jax.lax.stop_gradient(project(next_distribution, moved, support))
         logits1, logits2 = self.critic.apply(critic_params, batch.observation, batch.action, structure)
         return -jnp.sum(target * (jax.nn.log_softmax(logits1) + jax.nn.log_softmax(logits2)), axis=-1)
 
