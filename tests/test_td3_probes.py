@@ -208,12 +208,12 @@ def test_actor_and_targets_update_every_second_step():
     assert int(state.critic_steps) == 2
 
 
-@pytest.mark.parametrize("clipped", [True, False])
-def test_the_target_bootstraps_from_the_lower_or_the_mean_of_the_two_target_critics(clipped):
-    """Clipped double Q: y = r + discount * min(Q1', Q2'); without it y = r + discount * (Q1' + Q2') / 2.
-    The two critics' initial weights differ, so the two targets differ by half their gap."""
+@pytest.mark.parametrize("pessimism", [1.0, 0.5, 0.0])
+def test_the_target_bootstraps_from_the_lower_or_the_mean_of_the_two_target_critics(pessimism):
+    """Pessimism 1 (clipped double Q): y = r + discount * min(Q1', Q2'); 0: r + discount * (Q1' + Q2') / 2;
+    0.5 halfway between. The two critics' initial weights differ, so the three targets differ."""
     base = learner()
-    td3 = Learner(base.actor, base.critic, dataclasses.replace(base.config, clipped_double_q=clipped))
+    td3 = Learner(base.actor, base.critic, dataclasses.replace(base.config, target_pessimism=pessimism))
     state = td3.init(jax.random.PRNGKey(0))
     batch = jax.tree.map(
         lambda leaf: leaf[0], random_batch(jax.random.PRNGKey(3), reward=0, terminated=False)
@@ -231,7 +231,8 @@ def test_the_target_bootstraps_from_the_lower_or_the_mean_of_the_two_target_crit
     next1, next2 = td3._q_values(state.target_critic_params, batch.next_observation, next_action, structure)
     gap = np.abs(np.asarray(next1 - next2))[:, MASK[0]]
     assert gap.mean() > 1e-2, "the probe needs two target critics that disagree"
-    next_value = jnp.minimum(next1, next2) if clipped else (next1 + next2) / 2
+    lower, mean = jnp.minimum(next1, next2), (next1 + next2) / 2
+    next_value = pessimism * lower + (1 - pessimism) * mean
     target = batch.reward[:, None] + td3.config.discount * next_value
     q1, q2 = td3._q_values(state.critic_params, batch.observation, batch.action, structure)
     squared = np.where(MASK[0], np.asarray((q1 - target) ** 2 + (q2 - target) ** 2), 0.0)

@@ -306,6 +306,13 @@ class TrainConfig:
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
                 f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
             )
+        if not 0.0 <= self.td3.target_pessimism <= 1.0 or (
+            self.td3.atoms and self.td3.target_pessimism not in (0.0, 1.0)
+        ):
+            raise ConfigError(
+                f"--td3.target-pessimism must be in [0, 1] (1: the twin target critics' minimum, 0: their "
+                f"mean), and 0 or 1 with --td3.atoms; got {self.td3.target_pessimism}"
+            )
         if self.td3.atoms and not self.td3.value_min < self.td3.value_max:
             raise ConfigError(
                 f"--td3.value-min ({self.td3.value_min}) must be below --td3.value-max ({self.td3.value_max})"

@@ -13,8 +13,8 @@ the original SWAT code does (its ``TD3.py``), or with ``atoms`` a distribution o
     loss = mean over batch and real limbs of (Q1_l - y_l)^2 + (Q2_l - y_l)^2
 
 with a' the target policy's action plus clipped Gaussian noise (target policy smoothing), so truncated
-transitions bootstrap and terminated ones do not; without ``clipped_double_q`` the min is the two target
-critics' mean (FastTD3's option). With ``n_step`` N > 1, r is the sum of up to N discounted
+transitions bootstrap and terminated ones do not; ``target_pessimism`` below 1 moves the min toward the two
+target critics' mean (0: the mean, FastTD3's option). With ``n_step`` N > 1, r is the sum of up to N discounted
 rewards of the copy's next steps and discount is discount^m for the m summed (cut at the episode's end;
 ``Transitions.bootstrap``). SMP's critic sums its limbs' values into one Q per
 sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same formulas then hold with
@@ -73,9 +73,10 @@ class TD3Config:
     """Smallest atom of the distributional critic: returns below it count as it."""
     value_max: float = 400.0
     """Largest atom of the distributional critic: returns above it count as it."""
-    clipped_double_q: bool = True
-    """True: the TD target bootstraps from the lower of the two target critics (TD3's clipped double Q);
-    False: from their mean (FastTD3's option, less pessimistic; with atoms, the mean of the two
+    target_pessimism: float = 1.0
+    """How far below the two target critics' mean the TD target bootstraps, in halves of their gap:
+    mean - pessimism * |Q1' - Q2'| / 2. 1: their minimum (TD3's clipped double Q); 0: their mean (FastTD3's
+    option, less pessimistic). With atoms only 1 (the lower-mean distribution) or 0 (the mean of the two
     distributions)."""
     n_step: int = 1
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
@@ -110,6 +111,13 @@ class Learner:
         atoms = getattr(self.critic.module, "atoms", 0)
         if atoms != self.config.atoms:
             raise ValueError(f"the critic has {atoms} atoms, the TD3 config {self.config.atoms}")
+        if not 0.0 <= self.config.target_pessimism <= 1.0 or (
+            self.config.atoms and self.config.target_pessimism not in (0.0, 1.0)
+        ):
+            raise ValueError(
+                f"target_pessimism must be in [0, 1] (0 or 1 with a distributional critic), got "
+                f"{self.config.target_pessimism}"
+            )
         if self.config.atoms and not self.config.value_min < self.config.value_max:
             raise ValueError(
                 f"value_min ({self.config.value_min}) must be below value_max ({self.config.value_max})"
@@ -292,11 +300,7 @@ class Learner:
         target_q1, target_q2 = self._q_values(
             target_critic_params, batch.next_observation, next_action, structure
         )
-        next_value = (
-            jnp.minimum(target_q1, target_q2)
-            if self.config.clipped_double_q
-            else (target_q1 + target_q2) / 2.0
-        )
+        next_value = pessimistic_value(target_q1, target_q2, self.config.target_pessimism)
         target = jax.lax.stop_gradient(batch.reward[:, None] + continues * next_value)
         q1, q2 = self._q_values(critic_params, batch.observation, batch.action, structure)
         squared = (q1 - target) ** 2 + (q2 - target) ** 2
@@ -312,8 +316,8 @@ class Learner:
         continues: jax.Array,
     ) -> jax.Array:
         """[B, L] cross-entropy of both critics' distributions against the target: of the two target
-        critics, the distribution whose mean is lower (the clipped double Q of TD3; without it, the mean of
-        the two distributions), its atoms moved to r + continues * z and projected back onto the support
+        critics, the distribution whose mean is lower (the clipped double Q of TD3; at pessimism 0, the mean
+        of the two distributions), its atoms moved to r + continues * z and projected back onto the support
         (:func:`project`); ``continues`` [B, 1]."""
         support = self.support()
         next1, next2 = (
@@ -322,7 +326,7 @@ class Learner:
                 target_critic_params, batch.next_observation, next_action, structure
             )
         )
-        if self.config.clipped_double_q:
+        if self.config.target_pessimism == 1.0:
             lower = (next1 @ support < next2 @ support)[..., None]
             next_distribution = jnp.where(lower, next1, next2)
         else:
@@ -399,6 +403,14 @@ def project(probabilities: jax.Array, moved: jax.Array, support: jax.Array) -> j
     moved = jnp.clip(moved, support[0], support[-1])
     closeness = jnp.clip(1.0 - jnp.abs(moved[..., :, None] - support) / spacing, 0.0, 1.0)
     return jnp.einsum("...j,...ji->...i", probabilities, closeness)
+
+
+def pessimistic_value(q1: jax.Array, q2: jax.Array, pessimism: float) -> jax.Array:
+    """[...] the twin critics' value for a TD target: their mean less ``pessimism`` halves of their gap
+    (1: their minimum, TD3's clipped double Q, computed as such; 0: their mean)."""
+    if pessimism == 1.0:
+        return jnp.minimum(q1, q2)
+    return (q1 + q2) / 2.0 - pessimism * jnp.abs(q1 - q2) / 2.0
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
