@@ -308,7 +308,7 @@ def _curve(
 
 def figure(curves: Sequence[Curve], target: float, budget: int, title: str, path: Path) -> None:
     """Mean return over bodies against counted steps (the original's budget dotted) and against machine
-    seconds per seed."""
+    seconds per seed, side by side under one title."""
     fig = new_figure()
     axes = fig.subplots(1, 2)
     for index, curve in enumerate(curves):
@@ -326,8 +326,8 @@ def figure(curves: Sequence[Curve], target: float, budget: int, title: str, path
             ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="the original's budget")
         ax.set_xlabel(label)
         ax.set_ylabel("return (training episodes, mean over bodies)")
-        ax.set_title(title)
         ax.legend(loc="lower right", fontsize="small")
+    fig.suptitle(title)
     fig.set_size_inches(12, 4.5)
     save(fig, path)
 

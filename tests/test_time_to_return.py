@@ -40,6 +40,37 @@ def test_the_final_return_leaves_out_the_points_past_the_budget():
     assert ttr.with_horizon(MICRO, "hopper", 1.6).budget("walker") == MICRO.budget("walker")
 
 
+class FixedCurve:
+    """A curve with given points (steps, machine seconds, mean, standard error)."""
+
+    def __init__(self, name, points):
+        self.name, self._points = name, points
+
+    def points(self):
+        return self._points
+
+
+def test_the_figure_draws_every_curve_against_steps_and_seconds_under_one_title(tmp_path, monkeypatch):
+    drawn = []
+    monkeypatch.setattr(ttr, "save", lambda figure, path: drawn.append(figure))
+    curves_ = [
+        FixedCurve("original (PyTorch)", [(1000, 50.0, 10.0, 1.0), (2000, 100.0, 30.0, 2.0)]),
+        FixedCurve("fast-2dev", [(1000, 20.0, 12.0, 1.0), (2000, 40.0, 35.0, 3.0)]),
+    ]
+    title = "Animal-Walkers (NerveNet bodies, 21-value limb observation), 4 seeds"
+    ttr.figure(curves_, 25.0, 2000, title, tmp_path / "set.png")
+    (figure,) = drawn
+    assert figure._suptitle.get_text() == title
+    steps_axis, seconds_axis = figure.axes
+    for ax, xs in ((steps_axis, ([1000, 2000], [1000, 2000])), (seconds_axis, ([50, 100], [20, 40]))):
+        assert ax.get_title() == "", "one title over both panels, not one per panel"
+        lines = {line.get_label(): line for line in ax.get_lines()}
+        assert lines["original (PyTorch)"].get_xdata().tolist() == xs[0]
+        assert lines["fast-2dev"].get_xdata().tolist() == xs[1]
+        assert lines["fast-2dev"].get_ydata().tolist() == [12.0, 35.0]
+        assert "R = 25.0" in [text.get_text() for text in ax.get_legend().get_texts()]
+
+
 def test_the_body_table_shows_the_body_where_a_configuration_falls_short():
     def curve(name: str, walker_2: list[float], walker_7: list[float]) -> ttr.Curve:
         finals = {
