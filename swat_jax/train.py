@@ -273,7 +273,7 @@ def train(
             flag_rows=flag_rows,
             why=_replay_rows_why(config, experiment.replay_rows, env.num_bodies),
             motors=env.motors_per_limb,
-            episode_ends=config.td3.n_step > 1,
+            episode_ends=config.td3.episode_ends,
         )
     )
     run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)

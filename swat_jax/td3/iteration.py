@@ -115,7 +115,7 @@ def init_train_state(
         config.capacity,
         env.max_limbs,
         env.observation_features,
-        episode_ends=learner.config.n_step > 1,
+        episode_ends=learner.config.episode_ends,
         motors=env.motors_per_limb,
     )
     return TrainState(
@@ -215,7 +215,7 @@ def make_train_iteration(
                 reward=result.reward,
                 next_observation=next_observation,
                 terminated=result.terminated,
-                ended=result.terminated | result.truncated if learner.config.n_step > 1 else None,
+                ended=result.terminated | result.truncated if learner.config.episode_ends else None,
             )
             counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
             if waits:

@@ -81,6 +81,12 @@ class TD3Config:
     n_step: int = 1
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
 
+    @property
+    def episode_ends(self) -> bool:
+        """Whether the replay stores where each copy's episodes end (:attr:`Transitions.ended`): n-step
+        returns cut their sums there."""
+        return self.n_step > 1
+
 
 @struct.dataclass
 class LearnerState:

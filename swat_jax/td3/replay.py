@@ -76,10 +76,10 @@ class ReplayBuffer:
 def buffer_bytes(
     tasks: int, capacity: int, max_limbs: int, features: int, motors: int = 1, episode_ends: bool = False
 ) -> int:
-    """Bytes of a buffer of this shape (:func:`init_buffer`'s arguments): two observations, an action
-    (``motors`` values per limb), a reward and a flag per row, and with ``episode_ends`` a second flag."""
-    per_row = 4 * (2 * max_limbs * features + max_limbs * motors + 1) + 1 + int(episode_ends)
-    return tasks * capacity * per_row
+    """Bytes of the transitions :func:`init_buffer` allocates for these arguments (its arrays' shapes,
+    computed without allocating them)."""
+    shapes = jax.eval_shape(lambda: init_buffer(tasks, capacity, max_limbs, features, episode_ends, motors))
+    return sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree_util.tree_leaves(shapes.data))
 
 
 def free_memory_bytes(device: jax.Device | None = None) -> int:
