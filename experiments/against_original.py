@@ -88,6 +88,7 @@ from experiments.paper import (
     exit_status,
     progress,
     read_timings,
+    shown,
 )
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
@@ -397,9 +398,7 @@ def print_plan(out: Path, settings: Settings, sets: Sequence[str], original: Ori
             steps = progress(run)
             state = "new" if steps is None else f"resumes at {steps:,} steps"
             run.write_config()
-            print(
-                f"XLA_FLAGS={shlex.quote(SINGLE_THREAD_XLA)} python {shlex.join(run.command()[1:])}  # {state}"
-            )
+            print(f"XLA_FLAGS={shlex.quote(SINGLE_THREAD_XLA)} {shown(run.command())}  # {state}")
 
 
 def main(argv: list[str] | None = None) -> int:

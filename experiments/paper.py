@@ -334,6 +334,11 @@ def exit_status(work: Callable[[], Path | None]) -> int:
     return 0
 
 
+def shown(command: Sequence[str]) -> str:
+    """``command`` as a shell line to copy, this interpreter's path written as ``python``."""
+    return shlex.join("python" if part == sys.executable else part for part in command)
+
+
 def train_all(runs: Sequence[RunSpec], out: Path) -> None:
     """Train every run that has not reached its budget, one after another; record their wall clock."""
     for index, run in enumerate(runs, start=1):
@@ -346,7 +351,7 @@ def train_all(runs: Sequence[RunSpec], out: Path) -> None:
         if steps is None:
             run.write_config()
         print(f"{label}: {'training' if steps is None else f'resuming at {steps:,} steps'}", file=sys.stderr)
-        print(f"  python {shlex.join(command[1:])}", file=sys.stderr)
+        print(f"  {shown(command)}", file=sys.stderr)
         start = time.perf_counter()
         status = run_child(command)
         add_timing(out, run.name, time.perf_counter() - start)
@@ -415,7 +420,7 @@ def write_tables(runs: Sequence[RunSpec], out: Path, scale: Scale) -> list[str]:
             sys.executable, "-m", "swat_jax.eval", *(str(run.run_dir) for run in set_runs),
             "--split", "test", "--episodes", str(scale.table_episodes), "--markdown",
         ]  # fmt: skip
-        print(f"tables: python {shlex.join(command[1:])}", file=sys.stderr)
+        print(f"tables: {shown(command)}", file=sys.stderr)
         result = subprocess.run(command, stdout=subprocess.PIPE, text=True)
         if result.returncode != 0:
             raise GridError(f"swat_jax.eval exited with status {result.returncode} (its message is above)")
@@ -501,7 +506,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.dry_run:
             for run in grid(args.command, scale, sets, algorithms, out):
                 run.write_config()
-                print("python", shlex.join(run.command()[1:]))
+                print(shown(run.command()))
             return None
         return produce(args.command, scale, sets, algorithms, out, argv)
 

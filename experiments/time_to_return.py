@@ -59,7 +59,7 @@ from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.original.curves import SeedCurves, original_curves, ours_curves
 from experiments.original.returns import Final, final_returns, welch
 from experiments.original.runs import SETTINGS, ScaleName, Settings, original_runs, paper_config
-from experiments.paper import GridError, RunSpec, exit_status, progress, read_timings, train_all
+from experiments.paper import GridError, RunSpec, exit_status, progress, read_timings, shown, train_all
 from swat_jax.compilation_cache import enable_caches
 from swat_jax.morphology import get_set
 from swat_jax.plot import new_figure, save
@@ -166,6 +166,7 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-nstep1-2dev": Candidate(n_step=1),
     "fast-nstep2-2dev": Candidate(n_step=2),
     "fast-nstep3-2dev": Candidate(n_step=3),
+    "fast-nstep5-2dev": Candidate(n_step=5),
     "fast-u128-2dev": Candidate(updates=128),
     "fast-u128-nstep3-2dev": Candidate(updates=128, n_step=3),
     "fast-mean-2dev": Candidate(pessimism=0.0),
@@ -191,10 +192,17 @@ class DeviceRun(RunSpec):
     devices: int = 1
 
     def command(self) -> list[str]:
+        return self._on_devices(super().command())
+
+    def resume_command(self) -> list[str]:
+        return self._on_devices(super().resume_command())
+
+    def _on_devices(self, command: list[str]) -> list[str]:
+        """``command`` run with XLA_FLAGS that give its process :attr:`devices` CPU devices."""
         if self.devices == 1:
-            return super().command()
+            return command
         flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={self.devices}"
-        return ["env", f"XLA_FLAGS={flags.strip()}", *super().command()]
+        return ["env", f"XLA_FLAGS={flags.strip()}", *command]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -543,7 +551,7 @@ def main(argv: list[str] | None = None) -> int:
                 steps = progress(run)
                 state = "new" if steps is None else f"resumes at {steps:,} steps"
                 run.write_config()
-                print(f"{shlex.join(run.command())}  # {state}")
+                print(f"{shown(run.command())}  # {state}")
             return None
         if not args.report_only:
             train_all(runs, args.out)

@@ -171,9 +171,13 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
 
 def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):
     run = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100-2dev")
-    command = run.command()
-    assert command[0] == "env" and command[1].endswith("--xla_force_host_platform_device_count=2")
-    assert command[2:5] == [sys.executable, "-m", "swat_jax.train"]
+    for command in (run.command(), run.resume_command()):
+        assert command[0] == "env" and command[1].endswith("--xla_force_host_platform_device_count=2")
+        assert command[2:5] == [sys.executable, "-m", "swat_jax.train"]
+    assert run.resume_command()[5:7] == ["--resume", str(run.run_dir)], "a resumed run keeps its devices"
+    assert paper.shown(run.command()).startswith("env 'XLA_FLAGS=") and " python -m swat_jax.train " in (
+        paper.shown(run.command())
+    ), "printed as a line to copy"
     plain = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100")
     assert dataclasses.replace(plain.config, run_dir="") == dataclasses.replace(run.config, run_dir="")
     assert "device_count" not in " ".join(plain.command())
