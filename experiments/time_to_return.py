@@ -97,6 +97,8 @@ class Candidate:
     pessimism: float | None = None
     """How far below the twin target critics' mean TD targets bootstrap (``--td3.target-pessimism``; 0: their
     mean)."""
+    reward_scaling: bool | None = None
+    """Each body's rewards divided by the spread of its discounted returns (``--td3.reward-scaling``)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -112,6 +114,7 @@ class Candidate:
                 learning_rate=self.learning_rate,
                 n_step=self.n_step,
                 target_pessimism=self.pessimism,
+                reward_scaling=self.reward_scaling,
             ),
         )
         if self.c51:
@@ -171,12 +174,13 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-u128-nstep3-2dev": Candidate(updates=128, n_step=3),
     "fast-mean-2dev": Candidate(pessimism=0.0),
     "fast-p0.5-2dev": Candidate(pessimism=0.5),
+    "fast-rscale-2dev": Candidate(reward_scaling=True),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X (``paper-flax``: the
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}

@@ -42,9 +42,16 @@ class Axes:
     """The environment-copy axis [n] of one seed's array, or None."""
 
 
-def field(*, seeded: bool = True, task: int | None = None, copy: int | None = None) -> Any:
-    """A pytree field of a ``flax.struct`` dataclass with its batch axes (:class:`Axes`) declared."""
-    return struct.field(metadata={AXES: Axes(seeded, task, copy)})
+def field(
+    *,
+    seeded: bool = True,
+    task: int | None = None,
+    copy: int | None = None,
+    default: Any = dataclasses.MISSING,
+) -> Any:
+    """A pytree field of a ``flax.struct`` dataclass with its batch axes (:class:`Axes`) declared (and its
+    ``default``, if given)."""
+    return struct.field(metadata={AXES: Axes(seeded, task, copy)}, default=default)
 
 
 def _declared(tree: Any, read: Callable[[Axes], int | None], axes: Axes | None = None) -> Any:

@@ -301,6 +301,11 @@ class TrainConfig:
                 "the original schedule's lock-step rounds do not keep; add --iteration.schedule all_tasks "
                 "--iteration.no-rounds or give --td3.n-step 1"
             )
+        if self.td3.reward_scaling and self.iteration.schedule != "all_tasks":
+            raise ConfigError(
+                "--td3.reward-scaling scales each body's rewards in the all-task update's batch from every body; "
+                "add --iteration.schedule all_tasks --iteration.no-rounds or drop --td3.reward-scaling"
+            )
         if self.td3.atoms and (self.td3.atoms < 2 or self.algo == "smp"):
             raise ConfigError(
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "

@@ -25,6 +25,7 @@ program.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
@@ -37,7 +38,13 @@ from swat_jax.morphology import StructureBatch
 from swat_jax.networks.policies import Params, action_mask
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert
+from swat_jax.td3.reward_scaling import discounted_returns
 from swat_jax.td3.schedules import Schedule, make_update_phase
+
+Collected = tuple[jax.Array, jax.Array | None, jax.Array, jax.Array | None]
+"""What one collection step gives the iteration: rewards [S, K, n], the observations acted on (with
+observation normalisation), [S] bool the seeds that stepped, and the discounted returns after the step
+[S, K, n] (with reward scaling)."""
 
 
 @struct.dataclass
@@ -59,6 +66,9 @@ class TrainState:
     round_start: jax.Array | None = None
     """[S] int32 the counted steps when each seed's current round began, with
     :attr:`IterationConfig.round_updates` (None without)."""
+    discounted_return: jax.Array | None = axes.field(task=0, copy=1, default=None)
+    """[S, K, n] each copy's discounted return of its episode so far, with reward scaling
+    (:attr:`~swat_jax.td3.TD3Config.reward_scaling`; None without)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,7 +119,8 @@ def init_train_state(
     (the environments reset as seeds of one :class:`MultiTaskEnv` state, see :func:`make_train_iteration`)."""
     seeds = axes.over_seeds(rngs.shape[0])
     learner_key, env_key, rng = seeds(lambda key: tuple(jax.random.split(key, 3)))(rngs)
-    learner_state = seeds(learner.init, out_axes=axes.seed_axes(jax.eval_shape(learner.init, rngs[0])))
+    init_learner = functools.partial(learner.init, tasks=env.num_bodies)
+    learner_state = seeds(init_learner, out_axes=axes.seed_axes(jax.eval_shape(init_learner, rngs[0])))
     buffer = init_buffer(
         env.num_bodies,
         config.capacity,
@@ -126,6 +137,11 @@ def init_train_state(
         steps_per_task=jnp.zeros((), jnp.int32),
         counted=jnp.zeros(rngs.shape[:1], jnp.int32),
         round_start=jnp.zeros(rngs.shape[:1], jnp.int32) if waits_for_rounds(config) else None,
+        discounted_return=(
+            jnp.zeros((rngs.shape[0], env.num_bodies, env.copies), jnp.float32)
+            if learner.config.reward_scaling
+            else None
+        ),
     )
 
 
@@ -192,13 +208,16 @@ def make_train_iteration(
             in_axes=(learner_axes, 0, 0),
             out_axes=learner_axes,
         )
+        observed_returns = over_seeds(
+            learner.observe_returns, in_axes=(learner_axes, 0, 0), out_axes=learner_axes
+        )
+        scales_rewards = learner.config.reward_scaling
 
-        def collect(
-            carry: tuple[TrainState, jax.Array], _
-        ) -> tuple[tuple[TrainState, jax.Array], tuple[jax.Array, jax.Array | None, jax.Array]]:
+        def collect(carry: tuple[TrainState, jax.Array], _) -> tuple[tuple[TrainState, jax.Array], Collected]:
             """One step of every copy of every task and seed, stored in the replay; its rewards, for networks
-            that normalise observations the observations it acted on, and which seeds stepped. A seed that
-            waits for its round's updates (``waiting`` [S]) keeps its environment and stores nothing."""
+            that normalise observations the observations it acted on, which seeds stepped, and with reward
+            scaling every copy's discounted return after the step. A seed that waits for its round's updates
+            (``waiting`` [S]) keeps its environment and stores nothing."""
             state, waiting = carry
             stepping = ~waiting
             rng, act_key = split(state.rng)
@@ -218,6 +237,15 @@ def make_train_iteration(
                 ended=result.terminated | result.truncated if learner.config.episode_ends else None,
             )
             counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
+            returns, running = None, None
+            if scales_rewards:
+                returns, running = discounted_returns(
+                    state.discounted_return,
+                    result.reward,
+                    result.terminated | result.truncated,
+                    stepping,
+                    learner.config.discount,
+                )
             if waits:
                 env_state = env.where_seeds(stepping, env_state, state.env)
                 counted = jnp.where(stepping, counted, 0)
@@ -228,14 +256,15 @@ def make_train_iteration(
                 rng=rng,
                 steps_per_task=state.steps_per_task + env.copies,
                 counted=state.counted + counted,
+                discounted_return=running,
             )
             observed_now = state.env.observation if learner.normalises_observations else None
             reward = jnp.where(stepping[:, None, None], result.reward, 0.0)
-            return (next_state, waiting), (reward, observed_now, stepping)
+            return (next_state, waiting), (reward, observed_now, stepping, returns)
 
         def collect_or_wait(
             carry: tuple[TrainState, jax.Array], _
-        ) -> tuple[tuple[TrainState, jax.Array], tuple[jax.Array, jax.Array | None, jax.Array]]:
+        ) -> tuple[tuple[TrainState, jax.Array], Collected]:
             """:func:`collect`, or no step at all once every seed waits (the rest of the chunk takes no physics)."""
 
             def wait(carry: tuple[TrainState, jax.Array]):
@@ -243,13 +272,14 @@ def make_train_iteration(
                 observed_now = state.env.observation if learner.normalises_observations else None
                 reward = jnp.zeros(state.env.round_ended.shape, jnp.float32)
                 waited = state.replace(steps_per_task=state.steps_per_task + env.copies)
-                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool))
+                returns = state.discounted_return if scales_rewards else None
+                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool), returns)
 
             return jax.lax.cond(jnp.all(carry[1]), wait, lambda carry: collect(carry, None), carry)
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
         counted_before = state.counted
-        (state, round_over), (rewards, observations, stepped) = jax.lax.scan(
+        (state, round_over), (rewards, observations, stepped, returns) = jax.lax.scan(
             collect_or_wait if waits else collect, (state, jnp.zeros(seeds, bool)), None, length=config.chunk
         )
         rng, update_key = split(state.rng)
@@ -260,6 +290,10 @@ def make_train_iteration(
             mask = structure.limb_mask[None, None, :, None, :] & stepped[:, :, None, None, None]
             learner_state = observed(
                 learner_state, jnp.moveaxis(observations, 0, 1), jnp.moveaxis(mask, 0, 1)
+            )
+        if scales_rewards:
+            learner_state = observed_returns(
+                learner_state, jnp.moveaxis(returns, 0, 1), jnp.moveaxis(stepped, 0, 1)
             )
         if waits:
             counts, round_start = round_update_counts(state.counted, state.round_start, round_over, num_tasks)

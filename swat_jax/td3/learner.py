@@ -43,6 +43,7 @@ from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, 
 from swat_jax.networks.observation_stats import NORMALISER, STATS, accumulate, with_stats
 from swat_jax.networks.policies import LimbNetwork, Params, action_mask
 from swat_jax.td3.replay import Transitions
+from swat_jax.td3.reward_scaling import ReturnStats
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +82,9 @@ class TD3Config:
     n_step: int = 1
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
 
+    reward_scaling: bool = False
+    """Divide each task's rewards by the spread of its discounted returns so far (FastTD3's per-task reward normaliser; :mod:`swat_jax.td3.reward_scaling`), so that no body's returns outweigh the others' in the all-task loss (needs the all_tasks schedule)."""
+
     @property
     def episode_ends(self) -> bool:
         """Whether the replay stores where each copy's episodes end (:attr:`Transitions.ended`): n-step
@@ -100,6 +104,8 @@ class LearnerState:
     critic_optimizer: optax.OptState
     critic_steps: jax.Array = axes.field(seeded=False)
     """[] int32 critic steps taken (one per update), shared by the seeds."""
+    returns: ReturnStats | None = None
+    """Each task's return statistics, with :attr:`TD3Config.reward_scaling` (None without)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,7 +150,9 @@ class Learner:
             optax.clip_by_global_norm(self.config.max_grad_norm), optax.adam(self.config.learning_rate)
         )
 
-    def init(self, rng: jax.Array) -> LearnerState:
+    def init(self, rng: jax.Array, tasks: int = 1) -> LearnerState:
+        """Fresh networks, targets equal to them, and with reward scaling the return statistics of
+        ``tasks`` tasks."""
         actor_key, critic_key = jax.random.split(rng)
         actor_params, critic_params = self.actor.init(actor_key), self.critic.init(critic_key)
         return LearnerState(
@@ -155,6 +163,7 @@ class Learner:
             actor_optimizer=self.optimizer().init(actor_params),
             critic_optimizer=self.optimizer().init(critic_params),
             critic_steps=jnp.zeros((), jnp.int32),
+            returns=ReturnStats.zeros(tasks) if self.config.reward_scaling else None,
         )
 
     def observe(self, state: LearnerState, observations: jax.Array, limb_mask: jax.Array) -> LearnerState:
@@ -170,6 +179,13 @@ class Learner:
             target_actor_params=with_stats(state.target_actor_params, stats),
             target_critic_params=with_stats(state.target_critic_params, stats),
         )
+
+    def observe_returns(self, state: LearnerState, returns: jax.Array, seen: jax.Array) -> LearnerState:
+        """``state`` with its return statistics merged with the discounted returns ``returns`` [..., K, n]
+        where ``seen`` [...] (:meth:`ReturnStats.merged`); unchanged without reward scaling."""
+        if state.returns is None:
+            return state
+        return state.replace(returns=state.returns.merged(returns, seen))
 
     def update(
         self,
@@ -202,6 +218,8 @@ class Learner:
         """:meth:`update` with the target policy smoothing noise given: ``noise`` [T, B, L] standard
         normal, scaled by ``policy_noise`` and clipped to ``noise_clip`` here (the parity tests feed the
         original code's draws)."""
+        if state.returns is not None:
+            batch = batch.replace(reward=batch.reward / state.returns.divisor()[:, None])
         critic_loss, critic_grads = jax.value_and_grad(self._critic_loss)(
             state.critic_params, state, batch, structure, noise
         )
