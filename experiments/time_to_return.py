@@ -175,6 +175,7 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-mean-2dev": Candidate(pessimism=0.0),
     "fast-p0.5-2dev": Candidate(pessimism=0.5),
     "fast-rscale-2dev": Candidate(reward_scaling=True),
+    "fast-rscale-mean-2dev": Candidate(reward_scaling=True, pessimism=0.0),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
