@@ -132,6 +132,12 @@ def _given(**values: Any) -> dict[str, Any]:
     return {name: value for name, value in values.items() if value is not None}
 
 
+def unscaled(**changes: Any) -> Candidate:
+    """The fast preset of sessions 28-32 with ``changes``: TD targets from the twin critics' minimum (unless
+    ``pessimism`` is given) and rewards unscaled, the candidates measured before reward scaling."""
+    return Candidate(**{"pessimism": 1.0, "reward_scaling": False, **changes})
+
+
 def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Candidate:
     """The fast preset with ``copies`` per body, ``chunk`` steps per copy, ``updates`` per iteration and
     ``batch`` per body, and ``more`` changes."""
@@ -166,16 +172,17 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
     "fast-c51-2dev": Candidate(c51=True),
-    "fast-nstep1-2dev": Candidate(n_step=1),
-    "fast-nstep2-2dev": Candidate(n_step=2),
-    "fast-nstep3-2dev": Candidate(n_step=3),
-    "fast-nstep5-2dev": Candidate(n_step=5),
-    "fast-u128-2dev": Candidate(updates=128),
-    "fast-u128-nstep3-2dev": Candidate(updates=128, n_step=3),
-    "fast-mean-2dev": Candidate(pessimism=0.0),
-    "fast-p0.5-2dev": Candidate(pessimism=0.5),
-    "fast-rscale-2dev": Candidate(reward_scaling=True),
+    "fast-nstep1-2dev": unscaled(n_step=1),
+    "fast-nstep2-2dev": unscaled(n_step=2),
+    "fast-nstep3-2dev": unscaled(n_step=3),
+    "fast-nstep5-2dev": unscaled(n_step=5),
+    "fast-u128-2dev": unscaled(updates=128),
+    "fast-u128-nstep3-2dev": unscaled(updates=128, n_step=3),
+    "fast-mean-2dev": unscaled(pessimism=0.0),
+    "fast-p0.5-2dev": unscaled(pessimism=0.5),
+    "fast-rscale-2dev": Candidate(reward_scaling=True, pessimism=1.0),
     "fast-rscale-mean-2dev": Candidate(reward_scaling=True, pessimism=0.0),
+    "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
