@@ -16,7 +16,8 @@ with a' the target policy's action plus clipped Gaussian noise (target policy sm
 transitions bootstrap and terminated ones do not; ``target_pessimism`` below 1 moves the min toward the two
 target critics' mean (0: the mean, FastTD3's option). With ``n_step`` N > 1, r is the sum of up to N discounted
 rewards of the copy's next steps and discount is discount^m for the m summed (cut at the episode's end;
-``Transitions.bootstrap``). SMP's critic sums its limbs' values into one Q per
+``Transitions.bootstrap``). With ``reward_scaling`` each task's r is first divided by the spread of its
+discounted returns (:mod:`swat_jax.td3.reward_scaling`). SMP's critic sums its limbs' values into one Q per
 sample (:attr:`~swat_jax.networks.NetworkConfig.sums_limb_values`), and the same formulas then hold with
 one "limb". The actor maximises the mean over limbs (SMP: the sum) of Q1 and is updated every
 ``policy_delay`` critic updates, or when the caller says so (``delayed``: the original schedule's phase);
