@@ -17,6 +17,7 @@ from swat_jax.td3.iteration import IterationConfig, init_train_state, make_train
 from swat_jax.td3.learner import Learner, TD3Config
 from swat_jax.td3.replay import Transitions
 from swat_jax.td3.reward_scaling import RETURN_BOUND, ReturnStats, discounted_returns
+from swat_jax.td3.schedules import make_update_phase
 
 NETWORK = network_config("swat", width=16, layers=1, feedforward=32)
 BODIES = ["hopper_3", "hopper_4"]
@@ -128,7 +129,11 @@ def test_the_iteration_keeps_the_statistics_of_every_copys_discounted_return(two
     assert float(stats.count[0]) == 12
 
 
-def test_reward_scaling_needs_the_all_task_update():
+def test_reward_scaling_needs_the_all_task_update(two_bodies):
+    structure, actor, critic = two_bodies
+    learner = Learner(actor, critic, TD3Config(batch_size=4, reward_scaling=True))
+    with pytest.raises(ValueError, match=r"reward scaling .* needs the all_tasks schedule"):
+        make_update_phase(structure, learner, "original", updates=2, seeds=1)
     paper, fast = PRESETS["paper"], PRESETS["fast"]
     with pytest.raises(ConfigError, match=r"--td3\.reward-scaling .* add --iteration\.schedule all_tasks"):
         dataclasses.replace(paper, td3=dataclasses.replace(paper.td3, reward_scaling=True))

@@ -216,6 +216,10 @@ def make_update_phase(
         raise ValueError("update counts (lock-step rounds) need the original schedule")
     if learner.config.n_step > 1 and schedule != "all_tasks":
         raise ValueError("n-step returns need the all_tasks schedule")
+    if learner.config.reward_scaling and schedule != "all_tasks":
+        raise ValueError(
+            "reward scaling divides every task's rewards of a batch: it needs the all_tasks schedule"
+        )
     step = UpdateStep(learner, jax.tree.map(jnp.asarray, structure), seeds, wait_for_batch, copies)
     shape = (structure.limb_mask.shape[0], updates) if schedule == "original" else (updates,)
     run = {"all_tasks": all_tasks, "original": original_counted if counted else original}[schedule]
