@@ -12,6 +12,7 @@ import pytest
 
 from swat_jax.envs import MultiTaskEnv
 from swat_jax.networks import make_actor_critic, network_config, task_set
+from swat_jax.runs.checkpoint import CheckpointInfo, Checkpoints, flatten
 from swat_jax.runs.config import PRESETS, ConfigError
 from swat_jax.td3.iteration import IterationConfig, init_train_state, make_train_iteration, seed_keys
 from swat_jax.td3.learner import Learner, TD3Config
@@ -104,29 +105,73 @@ def test_a_body_in_other_reward_units_gets_the_same_update_with_scaling(two_bodi
     assert all(jax.tree.leaves(close)) == scaling
 
 
-def test_the_iteration_keeps_the_statistics_of_every_copys_discounted_return(two_bodies):
-    """One iteration of 6 steps from the start, 2 copies per body on MuJoCo C: the statistics hold every
-    step's G of both copies, recomputed here from the iteration's rewards (no random-action hopper falls
-    within 6 steps), and the state carries each copy's G on."""
+def test_statistics_of_another_number_of_tasks_are_refused(two_bodies):
+    """Statistics of one task against a batch of two would divide both bodies' rewards by one divisor."""
+    structure, actor, critic = two_bodies
+    learner = Learner(actor, critic, TD3Config(batch_size=8, reward_scaling=True))
+    state = learner.init(jax.random.key(0))
+    with pytest.raises(ValueError, match=r"2 tasks against return statistics of 1: .*tasks=2"):
+        learner.update(state, _batch(jax.random.key(1), structure), structure, jax.random.key(2))
+    with pytest.raises(ValueError, match=r"2 tasks against return statistics of 1"):
+        learner.observe_returns(state, jnp.ones((3, 2, 4)), jnp.ones(3, bool))
+
+
+@pytest.fixture(scope="module")
+def iterating(two_bodies):
+    """The first state and the jitted iteration of 6 steps, 2 copies per body on MuJoCo C, with reward
+    scaling."""
     structure, actor, critic = two_bodies
     env = MultiTaskEnv(BODIES, copies=2, max_limbs=5, physics="c")
-    td3 = TD3Config(batch_size=4, reward_scaling=True)
-    learner = Learner(actor, critic, td3)
+    learner = Learner(actor, critic, TD3Config(batch_size=4, reward_scaling=True))
     config = IterationConfig(
         chunk=6, updates=2, random_steps=100, capacity=64, schedule="all_tasks", rounds=False
     )
-    state = init_train_state(env, learner, config, seed_keys(0, 1))
-    state, metrics = make_train_iteration(env, structure, learner, config)(state)
+    return init_train_state(env, learner, config, seed_keys(0, 1)), make_train_iteration(
+        env, structure, learner, config
+    )
+
+
+def test_the_iteration_keeps_the_statistics_of_every_copys_discounted_return(iterating):
+    """One iteration from the start: the statistics hold every step's G of both copies, recomputed here from
+    the iteration's rewards (no random-action hopper falls within 6 steps), and the state carries each copy's
+    G on."""
+    start, iteration = iterating
+    state, metrics = iteration(start)
     assert int(metrics["episodes"].count.sum()) == 0, "no episode ended: G is never reset"
     reward = np.asarray(metrics["reward"][0])  # [chunk, K, n]
     returns = np.zeros_like(reward)
     for step in range(reward.shape[0]):
-        returns[step] = reward[step] + (td3.discount * returns[step - 1] if step else 0.0)
+        returns[step] = reward[step] + (TD3Config().discount * returns[step - 1] if step else 0.0)
     stats = state.learner.returns
     np.testing.assert_allclose(stats.mean[0], returns.mean(axis=(0, 2)), rtol=1e-5)
     np.testing.assert_allclose(stats.variance[0], returns.var(axis=(0, 2)), rtol=1e-4)
     np.testing.assert_allclose(state.discounted_return[0], returns[-1], rtol=1e-5)
     assert float(stats.count[0]) == 12
+
+
+def test_a_checkpoint_carries_the_statistics_and_running_returns_on(iterating, tmp_path):
+    """Saved after one iteration and restored into a fresh state, the run goes on as if uninterrupted: the
+    return statistics and every copy's G so far come back (a fresh state's would scale the next rewards
+    otherwise)."""
+    start, iteration = iterating
+    state, _ = iteration(start)
+    checkpoints = Checkpoints(tmp_path)
+    info = CheckpointInfo(
+        env_steps=24,
+        iterations=1,
+        seconds=0.0,
+        seeds=(0,),
+        bodies=tuple(BODIES),
+        max_limbs=5,
+        observation_features=FEATURES,
+    )
+    checkpoints.save(state, {}, info)
+    device = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    restored, _ = checkpoints.restore(start, jax.tree.map(lambda _: device, start))
+    checkpoints.close()
+    assert not np.array_equal(restored.learner.returns.mean, start.learner.returns.mean)
+    uninterrupted, resumed = flatten(iteration(state)[0]), flatten(iteration(restored)[0])
+    assert [key for key in uninterrupted if not np.array_equal(uninterrupted[key], resumed[key])] == []
 
 
 def test_reward_scaling_needs_the_all_task_update(two_bodies):

@@ -16,8 +16,10 @@ TrainConfig's defaults:
   paper's intended method on the original's schedule, updated after every chunk.
 - ``fast``: the recipe measured fastest to the original trainer's final return on a 2-core CPU
   (docs/training.md): four copies per task and the ``all_tasks`` schedule (each update one Adam step on a
-  small batch from every task), 3-step returns, and the sizes and hyperparameters it was measured at (a
-  width-32 one-layer network, learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body).
+  small batch from every task), 3-step returns, each body's rewards scaled by the spread of its returns,
+  TD targets halfway between the twin target critics' minimum and mean, and the sizes and hyperparameters it
+  was measured at (a width-32 one-layer network, learning rate 1e-3, 1,000 random steps and 50,000 replay
+  rows per body).
 
 Budget convention (the benchmark's): ``steps`` counts environment steps summed over all bodies of the set,
 so Animal-Walkers' 10M steps give each of its 5 bodies 2M.
@@ -181,7 +183,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
     preset: Preset = host_only("paper")
-    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, per-body reward scaling, target pessimism 0.5, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
     seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -311,12 +313,16 @@ class TrainConfig:
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
                 f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
             )
-        if not 0.0 <= self.td3.target_pessimism <= 1.0 or (
-            self.td3.atoms and self.td3.target_pessimism not in (0.0, 1.0)
-        ):
+        if not 0.0 <= self.td3.target_pessimism <= 1.0:
             raise ConfigError(
                 f"--td3.target-pessimism must be in [0, 1] (1: the twin target critics' minimum, 0: their "
-                f"mean), and 0 or 1 with --td3.atoms; got {self.td3.target_pessimism}"
+                f"mean); got {self.td3.target_pessimism}"
+            )
+        if self.td3.atoms and self.td3.target_pessimism not in (0.0, 1.0):
+            raise ConfigError(
+                f"--td3.atoms needs --td3.target-pessimism 0 or 1 (the distributional critic bootstraps from one "
+                f"critic's distribution or the twins' mixture); got {self.td3.target_pessimism} (the fast "
+                f"preset's 0.5): add --td3.target-pessimism 1"
             )
         if self.td3.atoms and not self.td3.value_min < self.td3.value_max:
             raise ConfigError(
@@ -423,7 +429,14 @@ PRESETS: dict[str, TrainConfig] = {
             random_steps=1_000,
             capacity=50_000,
         ),
-        td3=dataclasses.replace(PAPER.td3, batch_size=25, learning_rate=1e-3, n_step=3),
+        td3=dataclasses.replace(
+            PAPER.td3,
+            batch_size=25,
+            learning_rate=1e-3,
+            n_step=3,
+            reward_scaling=True,
+            target_pessimism=0.5,
+        ),
     ),
 }
 """The defaults each preset gives every flag: the paper's, and each other preset's differences from it."""

@@ -186,6 +186,7 @@ class Learner:
         where ``seen`` [...] (:meth:`ReturnStats.merged`); unchanged without reward scaling."""
         if state.returns is None:
             return state
+        _check_tasks(state.returns, returns.shape[-2], "the returns'")
         return state.replace(returns=state.returns.merged(returns, seen))
 
     def update(
@@ -220,6 +221,7 @@ class Learner:
         normal, scaled by ``policy_noise`` and clipped to ``noise_clip`` here (the parity tests feed the
         original code's draws)."""
         if state.returns is not None:
+            _check_tasks(state.returns, batch.reward.shape[0], "the batch's")
             batch = batch.replace(reward=batch.reward / state.returns.divisor()[:, None])
         critic_loss, critic_grads = jax.value_and_grad(self._critic_loss)(
             state.critic_params, state, batch, structure, noise
@@ -441,3 +443,13 @@ def pessimistic_value(q1: jax.Array, q2: jax.Array, pessimism: float) -> jax.Arr
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
     """[B, L] values, [L] mask -> [] mean over the batch and the masked-in columns."""
     return jnp.sum(jnp.where(mask, values, 0.0)) / (jnp.sum(mask) * values.shape[0])
+
+
+def _check_tasks(stats: ReturnStats, tasks: int, what: str) -> None:
+    """Refuse ``tasks`` tasks against return statistics of another number of tasks, which would broadcast
+    one task's divisor over every task (trace time: the shapes are static)."""
+    if stats.mean.shape[0] != tasks:
+        raise ValueError(
+            f"{what} {tasks} tasks against return statistics of {stats.mean.shape[0]}: give "
+            f"Learner.init(rng, tasks={tasks})"
+        )
