@@ -138,10 +138,16 @@ def unscaled(**changes: Any) -> Candidate:
     return Candidate(**{"pessimism": 1.0, "reward_scaling": False, **changes})
 
 
+def one_step(**changes: Any) -> Candidate:
+    """The fast preset before n-step returns with ``changes``: :func:`unscaled`, with 1-step returns, the
+    candidates measured before session 28."""
+    return unscaled(**{"n_step": 1, **changes})
+
+
 def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Candidate:
-    """The fast preset with ``copies`` per body, ``chunk`` steps per copy, ``updates`` per iteration and
-    ``batch`` per body, and ``more`` changes."""
-    return Candidate(copies=copies, chunk=chunk, updates=updates, batch=batch, **more)
+    """The fast preset before n-step returns (:func:`one_step`) with ``copies`` per body, ``chunk`` steps per
+    copy, ``updates`` per iteration and ``batch`` per body, and ``more`` changes."""
+    return one_step(copies=copies, chunk=chunk, updates=updates, batch=batch, **more)
 
 
 CANDIDATES: dict[str, Candidate] = {
@@ -163,15 +169,15 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-c4-k16-u64-b100-lr3e-3-init-2dev": recipe(
         4, 16, 64, 100, learning_rate=3e-3, initialisation="original"
     ),
-    "fast-init-2dev": Candidate(initialisation="original"),
-    "fast-lr2e-3-2dev": Candidate(learning_rate=2e-3),
-    "fast-norm-2dev": Candidate(normalise=True),
+    "fast-init-2dev": one_step(initialisation="original"),
+    "fast-lr2e-3-2dev": one_step(learning_rate=2e-3),
+    "fast-norm-2dev": one_step(normalise=True),
     "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
     "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
     "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
-    "fast-n0.05-0.4-2dev": Candidate(noise=(0.05, 0.4)),
+    "fast-n0.05-0.4-2dev": one_step(noise=(0.05, 0.4)),
     "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
-    "fast-c51-2dev": Candidate(c51=True),
+    "fast-c51-2dev": one_step(c51=True),
     "fast-nstep1-2dev": unscaled(n_step=1),
     "fast-nstep2-2dev": unscaled(n_step=2),
     "fast-nstep3-2dev": unscaled(n_step=3),

@@ -104,6 +104,15 @@ def test_the_stranded_table_counts_seeds_below_every_seed_of_the_original():
     assert "| fast | 2 of 4 | 2 of 4 |" in lines, "the two seeds that never walk; 270 is above 260"
 
 
+def test_every_candidate_is_the_configuration_it_was_measured_with(tmp_path):
+    """Each candidate builds a valid run whatever the preset is now, and one measured before n-step returns and
+    reward scaling keeps what it ran with (a C51 candidate would not build at the preset's pessimism 0.5)."""
+    settings = runs.SETTINGS["small"]
+    configs = {name: ttr.candidate_run(tmp_path, settings, "walker", name).config for name in ttr.CANDIDATES}
+    before = configs["fast-c51-2dev"].td3
+    assert (before.n_step, before.target_pessimism, before.reward_scaling) == (1, 1.0, False)
+
+
 def test_the_fast_candidate_at_the_small_scale_is_the_fast_preset_a_user_runs(tmp_path):
     """The preset's own sizes and hyperparameters are the ones its time to return was measured with."""
     settings = runs.SETTINGS["small"]
@@ -199,7 +208,10 @@ def test_every_candidate_is_its_preset_at_the_scale_with_its_changes(tmp_path):
     assert config("paper-2dev").td3.batch_size == small.batch_size == 100
     fast, recipe = config("fast-2dev"), config("fast-c4-k16-u256-b25-2dev")
     assert fast.td3.batch_size == 25 and fast.iteration.updates == 256
-    assert dataclasses.replace(fast, run_dir="") == dataclasses.replace(recipe, run_dir="")
+    shape = dataclasses.replace(fast, run_dir="", td3=recipe.td3)
+    assert shape == dataclasses.replace(recipe, run_dir=""), "the preset's shape is that recipe's"
+    last = dataclasses.replace(config("fast-rscale-p0.5-2dev"), run_dir="")
+    assert last == dataclasses.replace(fast, run_dir=""), "and its TD3 settings the last search's"
 
 
 def test_the_originals_budget_is_given_with_steps_and_a_run_of_another_is_refused(tmp_path, capsys):
