@@ -2,6 +2,7 @@
 
     python -m experiments.against_original [--sets hopper walker] [--scale small|paper] [--seeds 4]
         [--original-python /tmp/orig-venv/bin/python] [--original-tools DIR] [--parallel 2] [--dry-run]
+        [--report-only]
     python -m experiments.against_original --speed [--sets hopper walker animal_walkers] [--speed-seconds 120]
 
 On one environment set, with the same network sizes, TD3 hyperparameters, random-start steps and step
@@ -22,7 +23,9 @@ per body): swat_jax's point is the mean return of the training episodes that end
 original's the mean of its rounds' returns in it. Written to OUT: ``<set>.png`` (a panel per body and one
 for the mean over bodies; mean ± standard error over seeds), ``<set>.csv`` (every plotted number),
 ``timings.json`` and ``against_original.md`` (final returns, their difference and Welch's t-test over seeds,
-the wall clock and throughput of each side).
+the wall clock and throughput of each side; over two sets or more, the pooled test: Stouffer's combination
+of the one-sided tests and the sign test). Each swat_jax seed stops at the original's counted budget
+(``--counted-steps``). ``--report-only`` writes the report from the runs in OUT and trains nothing.
 
 ``--speed`` measures throughput at the paper's sizes instead (no learning curves): the original trainer for
 ``--speed-seconds`` with one torch thread and with all of them, and swat_jax's paper and fast presets
@@ -63,8 +66,12 @@ from experiments.original.curves import (
 from experiments.original.returns import (
     SIGNIFICANCE,
     Final,
+    below,
+    difference_interval,
     final_returns,
     final_value,
+    sign_test,
+    stouffer,
     time_to_reach,
     welch,
 )
@@ -104,9 +111,9 @@ def compare(
     environment_set: str,
     timings: Mapping[str, float],
     seed_bodies: Sequence[str] = (),
-) -> list[str]:
-    """Figure, CSV and the Markdown section of one set; ``seed_bodies`` of the set are tabulated seed by seed
-    (none of them in the set: the body furthest from the original)."""
+) -> tuple[list[str], dict[str, Final]]:
+    """Figure, CSV and the Markdown section of one set, and each side's final returns; ``seed_bodies`` of the
+    set are tabulated seed by seed (none of them in the set: the body furthest from the original)."""
     originals = [r for r in original_runs(out, settings, environment_set) if r.finished()]
     sides = {}
     if originals:
@@ -122,7 +129,7 @@ def compare(
             curve for mine, wall in seed_rows for curve in ours_curves(mine, settings, environment_set, wall)
         ]
     if not sides:
-        return [f"## {environment_set}\n\nNothing trained yet."]
+        return [f"## {environment_set}\n\nNothing trained yet."], {}
     points = curve_points(environment_set, sides)
     save(curves_figure(points, "train"), out / f"{environment_set}.png")
     write_points_csv(points, out / f"{environment_set}.csv")
@@ -149,13 +156,17 @@ def compare(
         else:
             minutes, steps_rate, updates_rate = _ours_speed(curves, seed_rows)
         lines.append(
-            f"| {side} | {len(curves)} | {first:.1f} | {final.mean:.1f} ± {final.standard_error:.1f} "
+            f"| {side} | {len(curves)} | {first:.1f} | {final.cell()} "
             f"| {minutes} | {steps_rate} | {updates_rate} |"
         )
+    lines += _short_lines(sides, settings, environment_set)
     lines += _surplus_lines(originals, rows)
-    if len(sides) == 2:
+    if len(sides) == 2 and all(len(final.values) >= 2 for final in finals.values()):
         lines += _difference_lines(sides, finals, settings, environment_set, seed_bodies)
-    return lines
+    elif len(sides) == 2:
+        counts = ", ".join(f"{side} {len(final.values)}" for side, final in finals.items())
+        lines += ["", f"No test: Welch's needs two seeds a side with a final return ({counts})."]
+    return lines, finals
 
 
 def _original_speed(originals: Sequence[OriginalRun], wall: float | None) -> tuple[str, str, str]:
@@ -197,13 +208,33 @@ def _surplus_lines(originals: Sequence[OriginalRun], rows: Sequence[Mapping[str,
             "transitions are stored but neither counted nor updated on.",
         ]
     if rows:
-        ours_stored = ours_surplus(rows)
+        stored, slots = ours_surplus(rows), ours_surplus(rows, "env_steps")
         lines += [
             "",
-            f"swat_jax's seeds stepped {min(ours_stored):.2f}-{max(ours_stored):.2f}x the steps they counted "
-            "(the same lock-step rounds; its curves are binned by counted steps).",
+            f"swat_jax's seeds stored {min(stored):.2f}-{max(stored):.2f}x the transitions they counted (the "
+            f"same lock-step rounds; its curves are binned by counted steps), in "
+            f"{min(slots):.2f}-{max(slots):.2f}x collection slots per counted step: the rest are slots a seed "
+            "waited, storing nothing, from its round's end to its chunk's end.",
         ]
     return lines
+
+
+def _short_lines(
+    sides: Mapping[str, Sequence[SeedCurves]], settings: Settings, environment_set: str
+) -> list[str]:
+    """A line per seed whose curve ends short of the budget's last points (no final return: left out of the
+    finals and the tests), saying where it ended."""
+    budget = settings.budget(environment_set)
+    lines = []
+    for side, curves in sides.items():
+        for seed, curve in enumerate(curves):
+            if math.isnan(final_value(curve.mean_over_bodies(), settings, environment_set)):
+                last = max(curve.seconds, default=0)
+                lines.append(
+                    f"{side} seed {seed} ended at the {last:,}-step point, short of the last points of the "
+                    f"{budget:,}-step budget: left out of the final returns."
+                )
+    return ["", *lines] if lines else []
 
 
 def _difference_lines(
@@ -288,8 +319,8 @@ def body_table(
     for body in get_set(environment_set).train:
         a, b = (final_returns(sides[side], settings, environment_set, body) for side in (ORIGINAL, OURS))
         lines.append(
-            f"| {body} | {a.mean:.1f} ± {a.standard_error:.1f} | {', '.join(f'{v:.0f}' for v in a.values)} "
-            f"| {b.mean:.1f} ± {b.standard_error:.1f} | {', '.join(f'{v:.0f}' for v in b.values)} | {welch(a, b):.3f} |"
+            f"| {body} | {a.cell()} | {', '.join(f'{v:.0f}' for v in a.values)} "
+            f"| {b.cell()} | {', '.join(f'{v:.0f}' for v in b.values)} | {welch(a, b):.3f} |"
         )
     return lines
 
@@ -320,11 +351,49 @@ def report(
         f"seed as well, single-threaded and pinned to a core, {original.parallel} at a time.",
         "",
     ]
+    pooled = {}
     for environment_set in sets:
-        lines += [*compare(out, settings, environment_set, timings, seed_bodies), ""]
+        section, finals = compare(out, settings, environment_set, timings, seed_bodies)
+        lines += [*section, ""]
+        if all(len(finals.get(side, Final(np.array([]))).values) >= 2 for side in (ORIGINAL, OURS)):
+            pooled[environment_set] = (finals[ORIGINAL], finals[OURS])
+    if len(pooled) >= 2:
+        lines += pooled_lines(pooled)
     path = out / "against_original.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def pooled_lines(finals: Mapping[str, tuple[Final, Final]]) -> list[str]:
+    """The sets compared, pooled: per set both sides' final returns (mean ± standard error over seeds), the
+    difference with its 90% interval, Welch's two-sided p and the one-sided p that swat_jax is lower; then
+    Stouffer's combination of the one-sided tests and the sign test over the sets."""
+    lines = [
+        "## Pooled over the sets",
+        "",
+        "Final returns: mean ± standard error over seeds. The difference is swat_jax's less the original's, "
+        "with its 90% interval (Welch's); the one-sided p tests swat_jax lower.",
+        "",
+        "| set | seeds a side | original | swat_jax | difference (90% interval) | Welch p | one-sided p |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    one_sided = []
+    for environment_set, (a, b) in finals.items():
+        low, high = difference_interval(a, b)
+        one_sided.append(below(a, b))
+        lines.append(
+            f"| {get_set(environment_set).title} | {len(a.values)}, {len(b.values)} | {a.cell()} | {b.cell()} "
+            f"| {b.mean - a.mean:+.1f} ({low:+.1f}, {high:+.1f}) | {welch(a, b):.3f} | {one_sided[-1]:.3f} |"
+        )
+    lower = sum(b.mean < a.mean for a, b in finals.values())
+    lines += [
+        "",
+        f"Stouffer's combination of the one-sided tests over the {len(finals)} sets: p = "
+        f"{stouffer(one_sided):.3f}; swat_jax lower on {lower} of {len(finals)} (sign test p = "
+        f"{sign_test(lower, len(finals)):.3f}).",
+        "",
+    ]
+    return lines
 
 
 # The command
@@ -365,6 +434,8 @@ class AgainstOriginalCommand:
     """Bodies the report tabulates seed by seed, both sides (final return and episode length, best point, when a seed first reached the original's final return); a set with none of them: its body furthest from the original."""
     dry_run: bool = False
     """Write swat_jax's config files, print both sides' commands and stop."""
+    report_only: bool = False
+    """Train nothing: write the report (and its pooled test over --sets) from the runs already in --out."""
     speed: bool = False
     """Measure throughput at the paper's sizes (both sides, --sets) and print a Markdown table instead of training curves."""
     speed_seconds: float = 120.0
@@ -422,7 +493,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.dry_run:
             print_plan(out, settings, sets, original)
             return None
-        run_sets(out, settings, sets, original, args.only)
+        if not args.report_only:
+            run_sets(out, settings, sets, original, args.only)
         return report(out, settings, sets, argv, original, args.seed_bodies)
 
     return exit_status(work)

@@ -54,6 +54,7 @@ from swat_jax.runs.config import (
     flag_values,
     load_config,
 )
+from swat_jax.runs.metrics import CSV_FILE, read_metrics
 from swat_jax.train import INTERRUPTED_STATUS
 
 MAIN_ALGORITHMS = ("swat", "amorpheus", "smp")
@@ -194,6 +195,7 @@ class RunSpec:
             str(self.run_dir),
             "--steps",
             str(self.config.steps),
+            *(["--counted-steps", str(self.config.counted_steps)] if self.config.counted_steps else []),
         ]
 
 
@@ -276,7 +278,7 @@ def progress(run: RunSpec) -> int | None:
     differences = [
         f"{flag} {saved[flag]!r} (wanted {value!r})"
         for flag, value in expected.items()
-        if flag not in ("--steps", "--run-dir") and saved[flag] != value
+        if flag not in ("--steps", "--counted-steps", "--run-dir") and saved[flag] != value
     ]
     if differences:
         raise GridError(
@@ -288,6 +290,19 @@ def progress(run: RunSpec) -> int | None:
         return checkpoints.latest_step() or 0
     finally:
         checkpoints.close()
+
+
+def reached_budget(run: RunSpec, steps: int) -> bool:
+    """Whether ``run``, its newest checkpoint at ``steps``, has ended: at its ``--steps``, or with
+    ``--counted-steps`` once every seed has counted them (its metrics rows up to the checkpoint say)."""
+    if steps >= run.config.steps:
+        return True
+    if not run.config.counted_steps or not (run.run_dir / CSV_FILE).is_file():
+        return False
+    counted = {
+        row["seed"]: row["counted_steps"] for row in read_metrics(run.run_dir) if row["env_steps"] <= steps
+    }
+    return bool(counted) and min(counted.values()) >= run.config.counted_steps
 
 
 def run_child(command: list[str]) -> int:
@@ -342,9 +357,9 @@ def shown(command: Sequence[str]) -> str:
 def train_all(runs: Sequence[RunSpec], out: Path) -> None:
     """Train every run that has not reached its budget, one after another; record their wall clock."""
     for index, run in enumerate(runs, start=1):
-        steps, budget = progress(run), run.config.steps
+        steps = progress(run)
         label = f"[{index}/{len(runs)}] {run.name}"
-        if steps is not None and steps >= budget:
+        if steps is not None and reached_budget(run, steps):
             print(f"{label}: done ({steps:,} steps), kept", file=sys.stderr)
             continue
         command = run.command() if steps is None else run.resume_command()
@@ -359,7 +374,7 @@ def train_all(runs: Sequence[RunSpec], out: Path) -> None:
             raise GridInterrupted(
                 f"{run.name} stopped before its budget; run the same command again to continue"
             )
-        if status != 0 or (progress(run) or 0) < budget:
+        if status != 0 or not reached_budget(run, progress(run) or 0):
             raise GridError(f"{run.name}: swat_jax.train exited with status {status} (its message is above)")
 
 

@@ -1,4 +1,4 @@
-"""The paper's figures from run directories: ``python -m swat_jax.plot curves|embeddings|relations``.
+"""The paper's figures from run directories: ``python -m swat_jax.plot curves|embeddings|relations|diagnostics``.
 
   curves      return against environment steps (Figures 4-6): the mean over a set's bodies, mean ±
               standard error over seeds as a band, a line per algorithm and a panel per set
@@ -7,6 +7,9 @@
               the set's train and test bodies, marker by body, colour by limb type
   relations   Figures 9-11: the learned relational bias g(R) of each head (section 4.2, eq. 4) on one
               body, an n x n heatmap per head labelled with the limb names
+  diagnostics one run's learning diagnostics (return, episode length, the critics' estimate against the
+              return, the twins' disagreement, saturated actions, the exploration noise applied, the update
+              share): a row per diagnostic, a column per body, a line per seed
 
 Figures are drawn off-screen with matplotlib's Agg canvas (no display, no pyplot state); every
 ``plot_*`` function saves a PNG and returns the matplotlib Figure. Bad input exits with status 2.
@@ -243,6 +246,77 @@ def plot_curves(
     output = Path(output)
     save(figure, output)
     write_points_csv(points, output.with_suffix(".csv"))
+    return figure
+
+
+# Learning diagnostics
+
+
+DIAGNOSTIC_ROWS = (
+    (("return",), "return (training episodes)"),
+    (("length",), "episode length (steps)"),
+    (("diag/estimate", "diag/return"), "critics' start estimate (solid)\nagainst discounted return (dashed)"),
+    (("diag/twin_gap",), "|Q1 - Q2| at the states acted on"),
+    (("diag/saturated",), "share of saturated actions"),
+    (("diag/noise",), "exploration noise applied (RMS)"),
+    (("diag/update_share",), "share of the updates"),
+)
+"""Per row of the diagnostics figure: the metrics columns it draws per body (``<column>/<body>``, the
+first solid, the second dashed) and its y label (:mod:`swat_jax.td3.diagnostics`)."""
+
+
+def diagnostics_figure(run: RunMetrics, bodies: Sequence[str]) -> Figure:
+    """A row per diagnostic (:data:`DIAGNOSTIC_ROWS`), a column per body of ``bodies``, a line per seed
+    in the seed's colour throughout, so a seed stranded on a plateau reads across the rows."""
+    seeds = list(dict.fromkeys(int(row["seed"]) for row in run.rows))
+    figure = new_figure()
+    figure.set_size_inches(PANEL_SIZE[0] * len(bodies), PANEL_SIZE[1] * 0.8 * len(DIAGNOSTIC_ROWS))
+    grid = figure.subplots(len(DIAGNOSTIC_ROWS), len(bodies), squeeze=False, sharex=True)
+    for row_axes, (columns, label) in zip(grid, DIAGNOSTIC_ROWS, strict=True):
+        for axes, body in zip(row_axes, bodies, strict=True):
+            for index, seed in enumerate(seeds):
+                for column, style in zip(columns, ("-", "--"), strict=False):
+                    curve = seed_curves([RunMetrics(run.config, _seed_rows(run, seed))], f"{column}/{body}")[
+                        0
+                    ]
+                    steps = sorted(curve)
+                    axes.plot(steps, [curve[step] for step in steps], style, color=f"C{index % 10}",
+                              marker="." if len(steps) < 20 else None,
+                              label=f"seed {seed}" if style == "-" else None)  # fmt: skip
+            axes.set_ylabel(label if body == bodies[0] else "")
+    for axes, body in zip(grid[0], bodies, strict=True):
+        axes.set_title(body)
+    for axes in grid[-1]:
+        axes.set_xlabel("environment steps")
+    grid[0][-1].legend()
+    figure.tight_layout()
+    return figure
+
+
+def _seed_rows(run: RunMetrics, seed: int) -> list[dict[str, float]]:
+    return [row for row in run.rows if int(row["seed"]) == seed]
+
+
+def plot_diagnostics(run_dir: str | Path, output: str | Path, *, bodies: Sequence[str] = ()) -> Figure:
+    """The learning diagnostics of one run (:func:`diagnostics_figure`) saved as ``output`` (PNG), for
+    ``bodies`` (names, as the metrics columns have them; default every body of the run).
+
+    Raises:
+        ConfigError: the folder is not a run, has no metrics, or has no ``diag/*`` columns.
+        ValueError: a body the run did not train.
+    """
+    run = read_run_metrics(Path(run_dir), "train")
+    trained = run.body_labels("train")
+    if not any(column.startswith("diag/") for column in run.rows[0]):
+        raise ConfigError(
+            f"{run_dir}: no diag/* columns in {CSV_FILE}: the run was trained with --iteration.no-diagnostics "
+            "or before the diagnostics existed; train it again to see them"
+        )
+    unknown = [body for body in bodies if body not in trained]
+    if unknown:
+        raise ValueError(f"{run_dir} did not train {', '.join(unknown)}; its bodies: {', '.join(trained)}")
+    figure = diagnostics_figure(run, list(bodies) or trained)
+    save(figure, Path(output))
     return figure
 
 
@@ -485,16 +559,35 @@ class RelationsCommand:
         return plot_relations(self.run_dir, self.body, self.output, seed_index=self.seed_index)
 
 
+@dataclasses.dataclass(frozen=True)
+class DiagnosticsCommand:
+    """One run's learning diagnostics, a row per diagnostic and a column per body, a line per seed: the
+    training return, the episode length, the critics' estimate of each episode's start against the
+    discounted return it got, the twin critics' disagreement, the share of saturated actions, the
+    exploration noise applied and each body's share of the updates (docs/training.md, "Diagnostics")."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """A run directory (trained with the diagnostics, the default)."""
+    output: Png
+    """The PNG to write."""
+    bodies: tuple[str, ...] = ()
+    """Only these bodies (as metrics.csv names them, e.g. hopper_3); default every body of the run."""
+
+    def draw(self) -> Figure:
+        return plot_diagnostics(self.run_dir, self.output, bodies=self.bodies)
+
+
 PlotCommand = (
     Annotated[CurvesCommand, tyro.conf.subcommand("curves")]
     | Annotated[EmbeddingsCommand, tyro.conf.subcommand("embeddings")]
     | Annotated[RelationsCommand, tyro.conf.subcommand("relations")]
+    | Annotated[DiagnosticsCommand, tyro.conf.subcommand("diagnostics")]
 )
-"""``python -m swat_jax.plot curves|embeddings|relations``: the paper's figures from training runs (PNG;
-curves also write their numbers as CSV)."""
+"""``python -m swat_jax.plot curves|embeddings|relations|diagnostics``: the paper's figures and a run's
+diagnostics from training runs (PNG; curves also write their numbers as CSV)."""
 
 
-def run(command: CurvesCommand | EmbeddingsCommand | RelationsCommand) -> str:
+def run(command: CurvesCommand | EmbeddingsCommand | RelationsCommand | DiagnosticsCommand) -> str:
     """Draw and save the figure the command asks for; returns what was written."""
     command.draw()
     extra = f" and {command.output.with_suffix('.csv')}" if isinstance(command, CurvesCommand) else ""

@@ -50,7 +50,7 @@ from swat_jax.td3.sharding import all_processes_reach, fetch
 
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 """Exit status after a Ctrl-C that left nothing to checkpoint (the shell's convention: 130)."""
-RESUMABLE_FLAGS = ("--steps", "--run-dir")
+RESUMABLE_FLAGS = ("--steps", "--counted-steps", "--run-dir")
 """Flags ``--resume`` may change; every other value is the run's own."""
 
 
@@ -232,7 +232,8 @@ def train(
     devices: int = 0,
     after_iteration: Callable[[int], None] | None = None,
 ) -> RunResult:
-    """Run (or continue) training until ``config.steps`` or a stop signal; returns where it ended.
+    """Run (or continue) training until ``config.steps``, ``config.counted_steps`` (when set) or a stop signal;
+    returns where it ended.
 
     Args:
         config: the run's configuration (for ``resume``, the saved one with any new budget).
@@ -337,7 +338,8 @@ def _loop(
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
     done = info.iterations
     seconds = info.seconds
-    window = MetricsWindow(config.seeds, env.num_bodies, info.metrics_window)
+    counted = fetch(state.counted)
+    window = MetricsWindow(config.seeds, env.num_bodies, info.metrics_window, config.iteration.diagnostics)
 
     start = time.perf_counter()
     print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
@@ -365,13 +367,15 @@ def _loop(
         )
         timed, window_start = 0, time.perf_counter()
         try:
-            while done < total and not stop.requested:
+            while not _finished(config, done, total, counted) and not stop.requested:
                 state, step_metrics = iteration(state)
                 # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
-                window.add(fetch(step_metrics))
+                fetched = fetch(step_metrics)
+                window.add(fetched)
+                counted = fetched["counted_steps"]
                 done, timed = done + 1, timed + 1
                 bar.update(per_iteration)
-                if done % log_every == 0 or done == total:
+                if done % log_every == 0 or _finished(config, done, total, counted):
                     now = time.perf_counter()
                     seconds += now - window_start
                     rate = timed * per_iteration / (now - window_start)
@@ -394,7 +398,32 @@ def _loop(
                 save()
         finally:
             bar.close()
-    return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=done < total)
+    if done == total and not _counted_enough(config, counted):
+        print(_short_of_counted(config, counted, done * per_iteration))
+    finished = _finished(config, done, total, counted)
+    return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=not finished)
+
+
+def _counted_enough(config: TrainConfig, counted: np.ndarray) -> bool:
+    """Every seed has counted ``config.counted_steps`` steps (True without a counted budget)."""
+    return int(np.min(counted)) >= config.counted_steps
+
+
+def _finished(config: TrainConfig, done: int, total: int, counted: np.ndarray) -> bool:
+    """The run is over: ``total`` iterations (the --steps cap) done, or with a counted budget every seed
+    has counted it."""
+    return done >= total or (config.counted_steps > 0 and _counted_enough(config, counted))
+
+
+def _short_of_counted(config: TrainConfig, counted: np.ndarray, steps: int) -> str:
+    """The line that says a run reached its --steps cap before its counted budget, and how to go on."""
+    seeds = ", ".join(
+        f"seed {seed} {int(n):,}" for seed, n in zip(config.seed_values(), counted, strict=True)
+    )
+    return (
+        f"stopped at the --steps cap ({steps:,} steps taken) before --counted-steps {config.counted_steps:,}: "
+        f"counted {seeds}; continue with --resume {config.directory()} --steps N (a larger cap)"
+    )
 
 
 def _log_rows(

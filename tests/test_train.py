@@ -138,6 +138,30 @@ def test_interrupted_and_resumed_run_equals_the_uninterrupted_one(trained_run, h
         )
 
 
+def test_a_counted_budget_stops_at_the_first_iteration_that_counts_it(
+    trained_run, hopper_folder, tmp_path, capsys
+):
+    """--counted-steps 150 in the lock-step rounds: every seed stops at the first iteration after which it has
+    counted 150 steps (one that counts fewer comes before it), short of --steps; with a counted budget past
+    what --steps lets it take, the run stops at the cap and says how to go on."""
+    config = tiny_train_config(tmp_path / "counted", hopper_folder, counted_steps=150, log_interval=100)
+    result = train(config, progress=False)
+    assert not result.interrupted and result.env_steps < config.steps
+    rows = read_metrics(tmp_path / "counted")
+    last = [row for row in rows if row["env_steps"] == result.env_steps]
+    before = [row for row in rows if row["env_steps"] == result.env_steps - 100]
+    assert min(row["counted_steps"] for row in last) >= 150 > min(row["counted_steps"] for row in before)
+    assert all(row["stored_steps"] <= row["env_steps"] for row in rows)
+    assert load_policy(tmp_path / "counted").info.env_steps == result.env_steps, "a checkpoint at the stop"
+    capped = tiny_train_config(tmp_path / "capped", hopper_folder, counted_steps=5000)
+    assert train(capped, progress=False).env_steps == 600, "the tiny run's program, whose rings fit 600"
+    output = capsys.readouterr().out
+    assert (
+        "stopped at the --steps cap (600 steps taken) before --counted-steps 5,000: counted seed 0 " in output
+    )
+    assert f"--resume {tmp_path / 'capped'} --steps N" in output
+
+
 def test_the_replay_holds_what_the_run_stores_and_grows_when_a_resume_raises_the_budget(
     trained_run, hopper_folder, tmp_path, capsys
 ):

@@ -89,8 +89,9 @@ def ours_curves(
     rows: Sequence[Mapping[str, float]], settings: Settings, environment_set: str, wall: float | None
 ) -> list[SeedCurves]:
     """Each seed's metrics rows binned on the grid by the steps counted so far (as the original's rounds
-    are), rows past the counted budget left out; wall clock from the rows' steps/s, the compile and
-    start-up time (the run's wall clock less its training windows) added, at each bin's last row."""
+    are), up to the first row that counts the budget (the original's last round also ends past it; the rows
+    after it left out); wall clock from the rows' steps/s, the compile and start-up time (the run's wall
+    clock less its training windows) added, at each bin's last row."""
     interval, budget = settings.log_interval(environment_set), settings.budget(environment_set)
     curves = []
     for seed in dict.fromkeys(int(row["seed"]) for row in rows):
@@ -100,7 +101,8 @@ def ours_curves(
             [steps / row["steps_per_second"] for steps, row in zip(stored, mine, strict=True)]
         )
         startup = (wall - windows[-1]) if wall is not None else 0.0
-        kept = [(row, t) for row, t in zip(mine, windows, strict=True) if row["counted_steps"] <= budget]
+        reaching = next((k for k, row in enumerate(mine) if row["counted_steps"] >= budget), len(mine) - 1)
+        kept = list(zip(mine[: reaching + 1], windows[: reaching + 1], strict=True))
         bins = [grid_step(row["counted_steps"], interval, budget) for row, _ in kept]
         bodies = get_set(environment_set).train
         returns = {body: binned(bins, [row[f"return/{body}"] for row, _ in kept]) for body in bodies}
@@ -110,10 +112,12 @@ def ours_curves(
     return curves
 
 
-def ours_surplus(rows: Sequence[Mapping[str, float]]) -> list[float]:
-    """Per seed, the environment steps swat_jax stored per step it counted, at its last row."""
+def ours_surplus(rows: Sequence[Mapping[str, float]], column: str = "stored_steps") -> list[float]:
+    """Per seed, the transitions swat_jax stored per step it counted, at its last row (``column``
+    ``env_steps``: the collection slots it took, those a seed waited for its round's updates included; rows
+    written before ``stored_steps`` existed count those)."""
     last = {int(row["seed"]): row for row in rows}
-    return [row["env_steps"] / max(row["counted_steps"], 1) for row in last.values()]
+    return [row.get(column, row["env_steps"]) / max(row["counted_steps"], 1) for row in last.values()]
 
 
 def curve_points(environment_set: str, sides: Mapping[str, Sequence[SeedCurves]]) -> list[CurvePoint]:

@@ -31,14 +31,24 @@ class Final:
     def standard_error(self) -> float:
         return standard_error(self.values)
 
+    def cell(self) -> str:
+        """``mean ± standard error`` for a table, or what is missing (never NaN)."""
+        if not len(self.values):
+            return "no seed reached the budget"
+        if len(self.values) == 1:
+            return f"{self.mean:.1f} (1 seed)"
+        return f"{self.mean:.1f} ± {self.standard_error:.1f}"
+
 
 def final_returns(
     curves: Sequence[SeedCurves], settings: Settings, environment_set: str, body: str | None = None
 ) -> Final:
     """Each seed's mean over the points of the budget's last ``final_fraction`` (points past the budget left
-    out): of the mean over bodies, or of ``body``'s curve."""
+    out): of the mean over bodies, or of ``body``'s curve; a seed without such points (a run that ended
+    short) has none and is left out."""
     lines = [curve.mean_over_bodies() if body is None else curve.returns[body] for curve in curves]
-    return Final(np.array([final_value(line, settings, environment_set) for line in lines]))
+    values = np.array([final_value(line, settings, environment_set) for line in lines])
+    return Final(values[np.isfinite(values)])
 
 
 def final_value(line: Mapping[int, float], settings: Settings, environment_set: str) -> float:
@@ -55,6 +65,39 @@ def welch(a: Final, b: Final) -> float:
     if len(a.values) < 2 or len(b.values) < 2:
         return math.nan
     return float(stats.ttest_ind(a.values, b.values, equal_var=False).pvalue)
+
+
+def welch_statistic(a: Final, b: Final) -> tuple[float, float, float]:
+    """Welch's t of ``b``'s mean less ``a``'s, its degrees of freedom (Welch-Satterthwaite) and the standard
+    error of the difference."""
+    va, vb = (np.var(final.values, ddof=1) / len(final.values) for final in (a, b))
+    error = math.sqrt(va + vb)
+    freedom = (va + vb) ** 2 / (va**2 / (len(a.values) - 1) + vb**2 / (len(b.values) - 1))
+    return (b.mean - a.mean) / error, freedom, error
+
+
+def below(a: Final, b: Final) -> float:
+    """One-sided p-value of Welch's test that ``b``'s mean is below ``a``'s (small when it is lower)."""
+    t, freedom, _ = welch_statistic(a, b)
+    return float(stats.t.cdf(t, freedom))
+
+
+def difference_interval(a: Final, b: Final, level: float = 0.90) -> tuple[float, float]:
+    """The ``level`` confidence interval of ``b``'s mean less ``a``'s (Welch's)."""
+    _, freedom, error = welch_statistic(a, b)
+    half = float(stats.t.ppf(0.5 + level / 2, freedom)) * error
+    return b.mean - a.mean - half, b.mean - a.mean + half
+
+
+def stouffer(one_sided: Sequence[float]) -> float:
+    """Stouffer's combination of independent one-sided p-values: 1 - Phi(sum of Phi^-1(1 - p) / sqrt(k))."""
+    z = np.sum(stats.norm.isf(np.asarray(one_sided))) / math.sqrt(len(one_sided))
+    return float(stats.norm.sf(z))
+
+
+def sign_test(lower: int, sets: int) -> float:
+    """One-sided sign test: the chance of ``lower`` or more of ``sets`` lower when each is a coin flip."""
+    return float(stats.binom.sf(lower - 1, sets, 0.5))
 
 
 def time_to_reach(curves: Sequence[SeedCurves], target: float) -> float | None:

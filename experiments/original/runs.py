@@ -26,6 +26,7 @@ from experiments.paper import (
     RunSpec,
     add_timing,
     progress,
+    reached_budget,
 )
 from swat_jax.convert import SET_FOLDERS
 from swat_jax.morphology import get_set
@@ -41,15 +42,14 @@ ORIGINAL_SET_FLAGS: dict[str, tuple[str, ...]] = {
 which has no folder) the name its XML files share."""
 CHUNK = 100
 """Steps per body of the paper preset's collection chunk (the original trains after each lock-step round)."""
-SURPLUS_ALLOWANCE: dict[str, float] = {"hopper": 2.4, "walker": 2.4, "cheetah": 1.1, "animal_walkers": 4.0}
-"""Collection slots (environment steps, those a seed waits for its round's updates included) the paper
-preset spends per step it counts, with room to spare, by set (else 2.5): its budget in ``--steps`` is the
-counted budget times this, so that every seed counts the whole budget. In lock-step rounds both
-implementations store more steps than they count (the original's trainers 1.24-1.59x on Hopper++ and
-1.48-1.53x on Walker++ at the small scale), and a seed whose round ends inside a chunk of 100 steps waits
-to the chunk's end: with the original's rounds, 1.83-2.10x and 1.93-2.05x slots per counted step.
-Cheetah++ never terminates: every round is 1,000 steps, all counted but the last. On Animal-Walkers the
-original stored 2.37-3.15x what it counted (its two cheetahs never terminate, and hold every round)."""
+STEPS_CAP = 6.0
+"""swat_jax's ``--steps`` (the steps it may take) per step of the counted budget it stops at
+(``--counted-steps``): a cap above any surplus seen, so that every seed stops at the counted budget, as the
+original's ``--max_timesteps`` does. In lock-step rounds both implementations take more steps than they
+count (the original's trainers 1.24-3.15x at the small scale, Animal-Walkers the most: its two cheetahs
+never terminate and hold every round), and a swat_jax seed whose round ends inside a chunk of 100 steps
+waits to the chunk's end (3.6-3.8x slots per counted step seen). The cap also sizes the replay rings, which
+are never overfilled either way, so it changes no computation."""
 ORIGINAL_WORK = Path(os.environ.get("ORIG_SWAT_DIR", "/tmp/swat-original"))
 """Where the original's tools copy its tree and where its main.py writes ``results/<expID>/``."""
 
@@ -127,12 +127,11 @@ class Settings:
         """Environment steps (all bodies) between two points of ``environment_set``'s curves."""
         return len(get_set(environment_set).train) * CHUNK * self.log_iterations
 
-    def stored_budget(self, environment_set: str) -> int:
-        """swat_jax's ``--steps`` on ``environment_set``: the counted budget times its surplus allowance,
-        rounded up to whole collection chunks of every body."""
+    def steps_cap(self, environment_set: str) -> int:
+        """swat_jax's ``--steps`` on ``environment_set``: the counted budget times :data:`STEPS_CAP`, rounded
+        up to whole collection chunks of every body (the run stops at the counted budget before it)."""
         chunk = len(get_set(environment_set).train) * CHUNK
-        allowance = SURPLUS_ALLOWANCE.get(environment_set, 2.5)
-        return math.ceil(self.budget(environment_set) * allowance / chunk) * chunk
+        return math.ceil(self.budget(environment_set) * STEPS_CAP / chunk) * chunk
 
     def budget(self, environment_set: str) -> int:
         """The step budget on ``environment_set`` in the steps the original counts (the curves' x axis);
@@ -206,14 +205,15 @@ def ours(out: Path, settings: Settings, environment_set: str) -> list[RunSpec]:
 
 
 def paper_config(settings: Settings, environment_set: str, run_dir: Path, **fields: Any) -> TrainConfig:
-    """The paper preset at these settings. Lock-step rounds store more steps than they count, so it runs for
-    :meth:`Settings.stored_budget` steps and logs a row (with the steps counted so far) after every chunk,
-    for the curves to be binned by counted steps; ``fields`` on top."""
+    """The paper preset at these settings: it stops at the counted budget (``--counted-steps``, the original's
+    own measure, so after the round that reaches it, as the original does), with :meth:`Settings.steps_cap`
+    as its ``--steps``, and logs a row (with the steps counted so far) after every chunk, for the curves to
+    be binned by counted steps; ``fields`` on top."""
     chunk = len(get_set(environment_set).train) * CHUNK
-    steps = settings.stored_budget(environment_set)
     return settings.config(
-        PRESETS["paper"], environment_set, run_dir, steps=steps, log_interval=chunk, **fields
-    )
+        PRESETS["paper"], environment_set, run_dir, steps=settings.steps_cap(environment_set),
+        counted_steps=settings.budget(environment_set), log_interval=chunk, **fields,
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -370,7 +370,7 @@ def train_ours(runs: Sequence[RunSpec], parallel: int, out: Path) -> None:
     pending = []
     for run in runs:
         steps = progress(run)
-        if steps is not None and steps >= run.config.steps:
+        if steps is not None and reached_budget(run, steps):
             print(f"{run.name}: done ({steps:,} steps), kept", file=sys.stderr)
         else:
             pending.append((functools.partial(_start_ours, run), functools.partial(_collect_ours, run, out)))
@@ -404,7 +404,7 @@ def _log_file(run: RunSpec) -> Path:
 
 def _collect_ours(run: RunSpec, out: Path, status: int, seconds: float) -> None:
     add_timing(out, run.name, seconds)
-    if status != 0 or (progress(run) or 0) < run.config.steps:
+    if status != 0 or not reached_budget(run, progress(run) or 0):
         raise GridError(f"{run.name}: swat_jax.train exited with status {status}; its log: {_log_file(run)}")
     print(f"{run.name}: finished in {seconds / 60:.1f} min", file=sys.stderr)
 

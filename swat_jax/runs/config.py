@@ -190,6 +190,8 @@ class TrainConfig:
     """Independent runs trained in one program, seeds seed .. seed+seeds-1 (a batch axis of the whole training state)."""
     steps: int = host_only(10_000_000)
     """Environment steps to train for, summed over all bodies of the set (the paper's budget convention)."""
+    counted_steps: int = host_only(0)
+    """Stop once every seed has counted this many environment steps, summed over the bodies (0: off, --steps alone ends the run). With the paper preset's lock-step rounds these are the steps the original counts, so the run stops where the original's --max_timesteps does: after the first round that reaches it, and its updates. --steps still caps the steps taken (and sizes the replay rings): a run that reaches that cap first stops there and says so."""
     envs: EnvConfig = dataclasses.field(default_factory=EnvConfig)
     """How the bodies are simulated and observed: copies, variants, physics, the original's observation quirks."""
     network: NetworkSizes = dataclasses.field(default_factory=NetworkSizes)
@@ -249,6 +251,8 @@ class TrainConfig:
             raise ConfigError(f"preset must be one of {', '.join(PRESET_NAMES)}, got {self.preset!r}")
         for name in ("steps", "seeds", "checkpoint_interval", "keep_checkpoints"):
             require_positive(f"--{name.replace('_', '-')}", getattr(self, name))
+        if self.counted_steps < 0:
+            raise ConfigError(f"--counted-steps must be 0 (off) or more, got {self.counted_steps}")
         if self.log_interval < 0:
             raise ConfigError(
                 f"--log-interval must be 0 (a twentieth of --steps) or more, got {self.log_interval}"
@@ -513,9 +517,17 @@ def _regrouped(fields: Any) -> Any:
     return fields
 
 
-EARLIER_SWITCHES = {"iteration": {"round_updates": False, "reset_next_state": False, "capacity_all": None}}
-"""Switches added with the original's training loop (December 2026), whose defaults changed what the paper
-preset computes, with the value that gives what a run computed before them."""
+EARLIER_SWITCHES = {
+    "iteration": {
+        "round_updates": False,
+        "reset_next_state": False,
+        "capacity_all": None,
+        "diagnostics": False,
+    }
+}
+"""Switches whose defaults changed what a run computes or keeps in its checkpoints (the original's training
+loop's, and the learning diagnostics' state), with the value that gives what a run written before them
+computed and saved."""
 
 
 def _with_earlier_switches(fields: Any) -> Any:

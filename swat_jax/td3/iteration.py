@@ -36,15 +36,17 @@ from swat_jax import axes
 from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.policies import Params, action_mask
+from swat_jax.td3 import diagnostics
+from swat_jax.td3.diagnostics import Acted, EpisodeValues
 from swat_jax.td3.learner import Learner, LearnerState
 from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert
 from swat_jax.td3.reward_scaling import discounted_returns
 from swat_jax.td3.schedules import Schedule, make_update_phase
 
-Collected = tuple[jax.Array, jax.Array | None, jax.Array, jax.Array | None]
+Collected = tuple[jax.Array, jax.Array | None, jax.Array, jax.Array | None, Acted | None]
 """What one collection step gives the iteration: rewards [S, K, n], the observations acted on (with
-observation normalisation), [S] bool the seeds that stepped, and the discounted returns after the step
-[S, K, n] (with reward scaling)."""
+observation normalisation), [S] bool the seeds that stepped, the discounted returns after the step
+[S, K, n] (with reward scaling), and what the step acted on, for the diagnostics (with them)."""
 
 
 @struct.dataclass
@@ -69,6 +71,9 @@ class TrainState:
     discounted_return: jax.Array | None = axes.field(task=0, copy=1, default=None)
     """[S, K, n] each copy's discounted return of its episode so far, with reward scaling
     (:attr:`~swat_jax.td3.TD3Config.reward_scaling`; None without)."""
+    episode_values: EpisodeValues | None = None
+    """[S, K, n] each copy's episode so far for the diagnostics, with :attr:`IterationConfig.diagnostics`
+    (None without)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +100,8 @@ class IterationConfig:
     """Store a transition that hits the time limit with the observation of the episode that starts next as its next state, bootstrapped from it, as the original does (its vectorised environment has already reset the copy); False: the observation the step reached."""
     capacity: int = 500_000
     """Replay rows per task (the paper: 500K); a run whose --steps store fewer per task gets rings of those rows rounded up to a power of two, which hold what the full ones would."""
+    diagnostics: bool = True
+    """Gather the learning diagnostics in collection (:mod:`swat_jax.td3.diagnostics`: the critics' estimate of each episode's start against its return, the twin critics' disagreement, saturated actions, the exploration noise applied, each body's updates), the diag/* columns of metrics.csv. They read the run and change nothing in it."""
     capacity_all: int | None = 4_000_000
     """Replay rows summed over tasks at most (the original's rb_max): a set of more tasks than capacity_all / capacity gets capacity_all / K rows per task (Cheetah++: 333,333); None: capacity rows per task whatever K."""
 
@@ -142,6 +149,9 @@ def init_train_state(
             if learner.config.reward_scaling
             else None
         ),
+        episode_values=(
+            EpisodeValues.fresh((rngs.shape[0], env.num_bodies, env.copies)) if config.diagnostics else None
+        ),
     )
 
 
@@ -175,12 +185,18 @@ def make_train_iteration(
     ran ([K x updates] with the original schedule, [updates] with all_tasks; :mod:`swat_jax.td3.schedules`;
     with rounds, each task's run has chunk x copies slots, the first (counted steps summed over tasks) / K
     of them updating), per-task rewards of the chunk [chunk, K, n], ``episodes``, the sums over the
-    episodes each task finished during this iteration (EpisodeStats, [K]), and ``counted_steps``, the steps
-    counted since the run's start (:attr:`TrainState.counted`).
+    episodes each task finished during this iteration (EpisodeStats, [K]), ``counted_steps``, the steps
+    counted since the run's start (:attr:`TrainState.counted`), ``stored_steps``, the transitions this
+    iteration stored (summed over tasks and copies; a seed waiting for its round's updates stores none),
+    and with :attr:`IterationConfig.diagnostics` ``diagnostics``, their sums per task [K]
+    (:func:`swat_jax.td3.diagnostics.summed`, and ``updates``: the updates that took a batch of the task).
     """
     structure = jax.tree.map(jnp.asarray, structure)
     num_tasks = structure.limb_mask.shape[0]
     explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
+    motors = jnp.expand_dims(
+        structure.motor_mask if env.motors_per_limb > 1 else structure.motor_mask[..., 0], 1
+    )
     waits = waits_for_rounds(config)
     # Update slots of each task's run: a chunk's counted steps, or with round_updates a whole round's.
     slots = (env.longest_episode if waits else config.chunk) * env.copies if config.rounds else config.updates
@@ -212,6 +228,18 @@ def make_train_iteration(
             learner.observe_returns, in_axes=(learner_axes, 0, 0), out_axes=learner_axes
         )
         scales_rewards = learner.config.reward_scaling
+        estimated = over_seeds(diagnostics.make_value_estimate(learner.body_values, structure))
+
+        def diagnose(
+            state: TrainState, acted: Acted, rewards: jax.Array, stepped: jax.Array
+        ) -> tuple[EpisodeValues, dict[str, jax.Array]]:
+            """The chunk's diagnostics (:mod:`swat_jax.td3.diagnostics`): its states valued by the critics
+            that acted in it, in one batch, and every copy's episode carried through it."""
+            divisor = state.learner.returns.divisor() if scales_rewards else jnp.ones((seeds, num_tasks))
+            q1, q2 = diagnostics.chunk_estimates(estimated, state.learner.critic_params, divisor, acted)
+            return diagnostics.iteration_sums(
+                state.episode_values, acted, q1, q2, rewards, stepped, motors, learner.config.discount
+            )
 
         def collect(carry: tuple[TrainState, jax.Array], _) -> tuple[tuple[TrainState, jax.Array], Collected]:
             """One step of every copy of every task and seed, stored in the replay; its rewards, for networks
@@ -221,7 +249,9 @@ def make_train_iteration(
             state, waiting = carry
             stepping = ~waiting
             rng, act_key = split(state.rng)
-            action = explored(state.learner.actor_params, state.env.observation, random_phase(state), act_key)
+            action, policy = explored(
+                state.learner.actor_params, state.env.observation, random_phase(state), act_key
+            )
             env_state, result = env.step(state.env, action)
             next_observation = result.next_observation
             if config.reset_next_state:
@@ -246,6 +276,11 @@ def make_train_iteration(
                     stepping,
                     learner.config.discount,
                 )
+            acted = None
+            if config.diagnostics:
+                policy_phase = jnp.broadcast_to(~random_phase(state), (seeds,))
+                ended = result.terminated | result.truncated
+                acted = Acted(state.env.observation, policy, action, ended, policy_phase)
             if waits:
                 env_state = env.where_seeds(stepping, env_state, state.env)
                 counted = jnp.where(stepping, counted, 0)
@@ -260,7 +295,7 @@ def make_train_iteration(
             )
             observed_now = state.env.observation if learner.normalises_observations else None
             reward = jnp.where(stepping[:, None, None], result.reward, 0.0)
-            return (next_state, waiting), (reward, observed_now, stepping, returns)
+            return (next_state, waiting), (reward, observed_now, stepping, returns, acted)
 
         def collect_or_wait(
             carry: tuple[TrainState, jax.Array], _
@@ -273,13 +308,18 @@ def make_train_iteration(
                 reward = jnp.zeros(state.env.round_ended.shape, jnp.float32)
                 waited = state.replace(steps_per_task=state.steps_per_task + env.copies)
                 returns = state.discounted_return if scales_rewards else None
-                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool), returns)
+                idle = None
+                if config.diagnostics:
+                    action = jnp.zeros((seeds, num_tasks, *env.action_shape), jnp.float32)
+                    ended = jnp.zeros(reward.shape, bool)
+                    idle = Acted(state.env.observation, action, action, ended, jnp.zeros(seeds, bool))
+                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool), returns, idle)
 
             return jax.lax.cond(jnp.all(carry[1]), wait, lambda carry: collect(carry, None), carry)
 
         state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
         counted_before = state.counted
-        (state, round_over), (rewards, observations, stepped, returns) = jax.lax.scan(
+        (state, round_over), (rewards, observations, stepped, returns, acted) = jax.lax.scan(
             collect_or_wait if waits else collect, (state, jnp.zeros(seeds, bool)), None, length=config.chunk
         )
         rng, update_key = split(state.rng)
@@ -311,7 +351,16 @@ def make_train_iteration(
             "reward": jnp.moveaxis(rewards, 0, 1),  # the scan stacks the chunk in front of the seed axis
             "episodes": state.env.episodes,
             "counted_steps": state.counted,
+            "stored_steps": jnp.sum(stepped, axis=0, dtype=jnp.int32) * num_tasks * env.copies,
         }
+        if config.diagnostics:
+            episode_values, sums = diagnose(state, acted, rewards, stepped)
+            state = state.replace(episode_values=episode_values)
+            updated = metrics["updated"].reshape(seeds, num_tasks if config.schedule == "original" else 1, -1)
+            metrics["diagnostics"] = {
+                **sums,
+                "updates": jnp.broadcast_to(jnp.sum(updated, axis=-1), (seeds, num_tasks)),
+            }
         return state.replace(learner=learner_state, rng=rng), metrics
 
     return iteration
@@ -338,22 +387,23 @@ def round_update_counts(
 
 def make_exploration(
     learner: Learner, structure: StructureBatch, scales: jax.Array
-) -> Callable[[Params, jax.Array, jax.Array, jax.Array], jax.Array]:
-    """``explore(actor_params, observation [K, n, L, F], uniform_phase [], rng) -> action [K, n, L]`` ([K, n,
-    L, M] in 3D) of one seed (paper section 5.1): uniform random actions in the random phase, else the
-    policy plus Gaussian noise of std ``scales`` [n] per copy (:func:`exploration_scales`), clipped to
-    [-1, 1]; 0 on padded limbs (and on the hinge slots a 3D limb does not have)."""
+) -> Callable[[Params, jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array]]:
+    """``explore(actor_params, observation [K, n, L, F], uniform_phase [], rng) -> (action, policy)`` [K, n, L]
+    ([K, n, L, M] in 3D) of one seed (paper section 5.1): the action is uniform random in the random phase,
+    else the policy plus Gaussian noise of std ``scales`` [n] per copy (:func:`exploration_scales`),
+    clipped to [-1, 1]; 0 on padded limbs (and on the hinge slots a 3D limb does not have). ``policy`` is
+    the policy's own action pi(s), for the diagnostics."""
     mask = jnp.expand_dims(action_mask(structure), 1)
     noise_scales = scales.reshape(1, -1, *[1] * (mask.ndim - 2))
 
     def explore(
         actor_params: Params, observation: jax.Array, uniform_phase: jax.Array, rng: jax.Array
-    ) -> jax.Array:
+    ) -> tuple[jax.Array, jax.Array]:
         policy_key, random_key = jax.random.split(rng)
         policy = jax.vmap(learner.actor.apply, in_axes=(None, 0, 0))(actor_params, observation, structure)
         noise = noise_scales * jax.random.normal(policy_key, policy.shape)
         uniform = jax.random.uniform(random_key, policy.shape, minval=-1.0, maxval=1.0)
         action = jnp.where(uniform_phase, uniform, jnp.clip(policy + noise, -1.0, 1.0))
-        return jnp.where(mask, action, 0.0)
+        return jnp.where(mask, action, 0.0), policy
 
     return explore

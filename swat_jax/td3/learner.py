@@ -373,6 +373,20 @@ class Learner:
 
         return self._task_mean(jax.vmap(task_loss), batch, structure)
 
+    def body_values(
+        self, critic_params: Params, observation: jax.Array, action: jax.Array, structure: StructureBatch
+    ) -> tuple[jax.Array, jax.Array]:
+        """The twin critics' estimates (Q1, Q2) [B] of a body's return from ``observation`` [B, L, F] after
+        ``action`` [B, L(, M)]: each critic's mean over the body's real limbs (every limb is regressed on the
+        body's TD target), in the units the critic learns (scaled rewards, with reward scaling)."""
+        mask = self._value_mask(structure.limb_mask)
+        q1, q2 = self._q_values(critic_params, observation, action, structure)
+        count = jnp.sum(mask)
+        return (
+            jnp.sum(jnp.where(mask, q1, 0.0), axis=-1) / count,
+            jnp.sum(jnp.where(mask, q2, 0.0), axis=-1) / count,
+        )
+
     def _q_values(
         self, critic_params: Params, observation: jax.Array, action: jax.Array, structure: StructureBatch
     ) -> tuple[jax.Array, jax.Array]:

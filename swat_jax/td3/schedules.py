@@ -36,8 +36,9 @@ Schedule = Literal["original", "all_tasks"]
 SCHEDULES: tuple[str, ...] = typing.get_args(Schedule)
 
 Updated = tuple[LearnerState, dict[str, jax.Array]]
-"""A learner state after updates, and their losses."""
+"""A learner state after updates, their losses and whether each ran (``updated``, 1 or 0)."""
 LOSSES = ("critic_loss", "actor_loss")
+UPDATE_METRICS = (*LOSSES, "updated")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,8 +127,13 @@ class UpdateStep:
         filled: jax.Array, update: Callable[[LearnerState], Updated], state: LearnerState
     ) -> Updated:
         """``update(state)`` where ``filled`` (:meth:`_filled`), else the state unchanged with zero losses."""
-        skipped = {name: jnp.zeros(()) for name in LOSSES}
-        return jax.lax.cond(filled, update, lambda s: (s, skipped), state)
+        skipped = {name: jnp.zeros(()) for name in UPDATE_METRICS}
+
+        def updated(state: LearnerState) -> Updated:
+            state, losses = update(state)
+            return state, {**losses, "updated": jnp.ones(())}
+
+        return jax.lax.cond(filled, updated, lambda s: (s, skipped), state)
 
     def _over_seeds(
         self, update: Callable, state: LearnerState, buffer: ReplayBuffer, *more: int
@@ -175,7 +181,7 @@ def original_counted(
             state, taken = step.task(state, buffer, run_keys[it], task, step.delayed(it), it < counts)
             return state, jax.tree.map(lambda all_, one: all_.at[it].set(one), losses, taken)
 
-        no_losses = {name: jnp.zeros((slots, step.seeds)) for name in LOSSES}
+        no_losses = {name: jnp.zeros((slots, step.seeds)) for name in UPDATE_METRICS}
         return jax.lax.fori_loop(0, jnp.max(counts), slot, (state, no_losses))
 
     return jax.lax.scan(task_run, state, (jnp.arange(keys.shape[0]), keys))
@@ -210,7 +216,8 @@ def make_update_phase(
         copies: the rows an insert writes per task (:attr:`UpdateStep.stride`).
 
     losses: ``critic_loss`` and ``actor_loss`` [S, K x updates] (task after task) or [S, updates], in the
-    order the updates ran.
+    order the updates ran, and ``updated`` of the same shape: 1 where the update ran, 0 where it was
+    skipped (a buffer without a batch yet, a seed past its count).
     """
     if counted and schedule != "original":
         raise ValueError("update counts (lock-step rounds) need the original schedule")
