@@ -161,10 +161,10 @@ def compare(
         )
     lines += _short_lines(sides, settings, environment_set)
     lines += _surplus_lines(originals, rows)
-    if len(sides) == 2 and all(len(final.values) >= 2 for final in finals.values()):
+    if len(sides) == 2 and all(len(final.finite().values) >= 2 for final in finals.values()):
         lines += _difference_lines(sides, finals, settings, environment_set, seed_bodies)
     elif len(sides) == 2:
-        counts = ", ".join(f"{side} {len(final.values)}" for side, final in finals.items())
+        counts = ", ".join(f"{side} {len(final.finite().values)}" for side, final in finals.items())
         lines += ["", f"No test: Welch's needs two seeds a side with a final return ({counts})."]
     return lines, finals
 
@@ -319,8 +319,8 @@ def body_table(
     for body in get_set(environment_set).train:
         a, b = (final_returns(sides[side], settings, environment_set, body) for side in (ORIGINAL, OURS))
         lines.append(
-            f"| {body} | {a.cell()} | {', '.join(f'{v:.0f}' for v in a.values)} "
-            f"| {b.cell()} | {', '.join(f'{v:.0f}' for v in b.values)} | {welch(a, b):.3f} |"
+            f"| {body} | {a.cell()} | {', '.join(f'{v:.0f}' for v in a.finite().values)} "
+            f"| {b.cell()} | {', '.join(f'{v:.0f}' for v in b.finite().values)} | {welch(a, b):.3f} |"
         )
     return lines
 
@@ -355,7 +355,7 @@ def report(
     for environment_set in sets:
         section, finals = compare(out, settings, environment_set, timings, seed_bodies)
         lines += [*section, ""]
-        if all(len(finals.get(side, Final(np.array([]))).values) >= 2 for side in (ORIGINAL, OURS)):
+        if all(len(finals.get(side, Final(np.array([]))).finite().values) >= 2 for side in (ORIGINAL, OURS)):
             pooled[environment_set] = (finals[ORIGINAL], finals[OURS])
     if len(pooled) >= 2:
         lines += pooled_lines(pooled)
@@ -382,7 +382,7 @@ def pooled_lines(finals: Mapping[str, tuple[Final, Final]]) -> list[str]:
         low, high = difference_interval(a, b)
         one_sided.append(below(a, b))
         lines.append(
-            f"| {get_set(environment_set).title} | {len(a.values)}, {len(b.values)} | {a.cell()} | {b.cell()} "
+            f"| {get_set(environment_set).title} | {len(a.finite().values)}, {len(b.finite().values)} | {a.cell()} | {b.cell()} "
             f"| {b.mean - a.mean:+.1f} ({low:+.1f}, {high:+.1f}) | {welch(a, b):.3f} | {one_sided[-1]:.3f} |"
         )
     lower = sum(b.mean < a.mean for a, b in finals.values())

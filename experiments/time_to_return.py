@@ -437,11 +437,11 @@ def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]
     for curve in [original, *candidates]:
         cells = []
         for body in bodies:
-            runs, final = len(curve.body_finals[body].values), _seeds_with_episodes(curve.body_finals[body])
+            runs, final = len(curve.body_finals[body].values), curve.body_finals[body].finite()
             if not len(final.values):
                 cells.append("no episode ended")
                 continue
-            reference = _seeds_with_episodes(original.body_finals[body])
+            reference = original.body_finals[body].finite()
             p = "" if curve is original else f" ({welch(final, reference):.2f})"
             seeds = "" if len(final.values) == runs else f", {len(final.values)} of {runs} seeds"
             cells.append(f"{final.mean:.1f} ± {final.standard_error:.1f}{p}{seeds}")
@@ -465,16 +465,11 @@ def stranded_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
         cells = []
         for body in bodies:
             lowest = np.nanmin(original.body_finals[body].values)
-            final = _seeds_with_episodes(curve.body_finals[body])
+            final = curve.body_finals[body].finite()
             cells.append(f"{int(np.sum(final.values < lowest))} of {len(final.values)}")
         below = int(np.sum(curve.finals.values < np.min(original.finals.values)))
         lines.append(f"| {curve.name} | {' | '.join(cells)} | {below} of {len(curve.finals.values)} |")
     return lines
-
-
-def _seeds_with_episodes(final: Final) -> Final:
-    """``final`` without the seeds that finished no episode in the budget's last points (NaN)."""
-    return Final(final.values[np.isfinite(final.values)])
 
 
 def report(

@@ -3,6 +3,7 @@ report tests the difference, and the swat_jax side runs end to end at a micro sc
 where the original code's venv is installed)."""
 
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -13,8 +14,10 @@ import pytest
 from scipy import stats as scipy_stats
 
 from experiments import against_original as against
+from experiments import plateau
 from experiments.original import curves, returns, runs
 from swat_jax.morphology import get_set
+from swat_jax.runs.config import TrainConfig
 from swat_jax.runs.config import flag_values as config_values
 
 REPO = Path(__file__).resolve().parents[1]
@@ -280,7 +283,8 @@ def test_our_last_round_past_the_budget_is_binned_as_the_originals_and_a_short_r
     seeds = [curves.ours_curves(rows, MICRO, "hopper", None)[0] for rows in (finished, short)]
     assert seeds[0].returns["hopper_3"] == {300: 10.0, 600: 10.0}, "the row at 800 comes after the budget"
     final = returns.final_returns(seeds, MICRO, "hopper")
-    assert list(final.values) == [10.0] and final.cell() == "10.0 (1 seed)"
+    assert list(final.finite().values) == [10.0] and final.cell() == "10.0 (1 of 2 seeds)"
+    assert returns.Final(np.array([10.0, 12.0, np.nan])).cell() == "11.0 ± 1.0, 2 of 3 seeds"
     assert returns.Final(np.array([])).cell() == "no seed reached the budget"
     lines = "\n".join(against._short_lines({runs.OURS: seeds}, MICRO, "hopper"))
     assert f"{runs.OURS} seed 1 ended at the 300-step point, short of" in lines and "seed 0" not in lines
@@ -312,3 +316,45 @@ def test_the_pooled_test_combines_the_sets_one_sided_welch_tests():
     pooled = "\n".join(against.pooled_lines({"hopper": pairs[0], "walker": pairs[1]}))
     assert "| Hopper++ | 8, 8 |" in pooled and "| 0.764 | 0.382 |" in pooled
     assert f"over the 2 sets: p = {returns.stouffer(one_sided[:2]):.3f}; swat_jax lower on 2 of 2" in pooled
+
+
+def test_the_plateau_table_sets_each_seeds_diagnostics_beside_whether_it_is_stranded(tmp_path, capsys):
+    """Two original seeds whose lowest final on hopper_3 is 15; a run of two seeds: seed 0 ends at 5 (below
+    it: stranded) with saturated actions, seed 1 at 40; the early window averages the rows after the random
+    phase (100 steps per body x 3) up to its share of the run, the late one the last 20%."""
+    for seed, final in enumerate((15.0, 30.0)):
+        run = runs.original_runs(tmp_path / "original_out", MICRO, "hopper")[seed]
+        rewards = {body: [1.0, final] for body in ("hopper_3", "hopper_4", "hopper_5")}
+        write_original_seed(run, [300, 600], rewards, [1.0, 2.0])
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    config = TrainConfig(env="hopper", preset="fast", seeds=2, steps=1000, run_dir=str(run_dir))
+    config = dataclasses.replace(config, iteration=dataclasses.replace(config.iteration, random_steps=100))
+    (run_dir / "config.json").write_text(config.to_json())
+    columns = [
+        "env_steps",
+        "seed",
+        *(f"{c}/hopper_{n}" for c in ("return", *plateau.COLUMNS) for n in (3, 4, 5)),
+    ]
+    with (run_dir / "metrics.csv").open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(columns)
+        for steps in (200, 400, 600, 800, 1000):
+            for seed, (final, saturated) in enumerate(((5.0, 0.9), (40.0, 0.1))):
+                values = {"return": final if steps == 1000 else 0.0, "diag/saturated": saturated}
+                writer.writerow([steps, seed, *(values.get(c.rsplit("/", 1)[0], steps) for c in columns[2:])])
+    argv = [
+        str(run_dir),
+        "--original-from",
+        str(tmp_path / "original_out"),
+        "--scale",
+        "micro",
+        "--early",
+        "0.5",
+    ]
+    assert plateau.main(argv) == 0
+    table = capsys.readouterr().out
+    assert "run, hopper_3 (stranded: below the original's lowest seed, 15.0):" in table
+    assert "| 0 | 5.0 | yes | 500, 1e+03 | 0.9, 0.9 |" in table, "length early: the rows at 400 and 600"
+    assert "| 1 | 40.0 | no | 500, 1e+03 | 0.1, 0.1 |" in table
+    assert plateau.main([str(tmp_path), "--original-from", str(tmp_path)]) == 2

@@ -22,33 +22,43 @@ class Final:
     """Each seed's final return (mean over bodies, averaged over the last points of the budget)."""
 
     values: np.ndarray
+    """[seeds]; NaN for a seed without one (its run ended short of the budget's last points)."""
+
+    def finite(self) -> Final:
+        """The seeds that have a final return."""
+        return Final(self.values[np.isfinite(self.values)])
 
     @property
     def mean(self) -> float:
-        return float(np.mean(self.values))
+        """The mean over the seeds that have a final return."""
+        return float(np.mean(self.finite().values))
 
     @property
     def standard_error(self) -> float:
-        return standard_error(self.values)
+        return standard_error(self.finite().values)
 
     def cell(self) -> str:
-        """``mean ± standard error`` for a table, or what is missing (never NaN)."""
-        if not len(self.values):
+        """``mean ± standard error`` for a table, with how many seeds have a final return when some do not
+        (never NaN)."""
+        count = len(self.finite().values)
+        if not count:
             return "no seed reached the budget"
-        if len(self.values) == 1:
-            return f"{self.mean:.1f} (1 seed)"
-        return f"{self.mean:.1f} ± {self.standard_error:.1f}"
+        seeds = f"{count} of {len(self.values)} seeds"
+        if count == 1:
+            return f"{self.mean:.1f} ({seeds if len(self.values) > 1 else '1 seed'})"
+        return f"{self.mean:.1f} ± {self.standard_error:.1f}" + (
+            "" if count == len(self.values) else f", {seeds}"
+        )
 
 
 def final_returns(
     curves: Sequence[SeedCurves], settings: Settings, environment_set: str, body: str | None = None
 ) -> Final:
     """Each seed's mean over the points of the budget's last ``final_fraction`` (points past the budget left
-    out): of the mean over bodies, or of ``body``'s curve; a seed without such points (a run that ended
-    short) has none and is left out."""
+    out): of the mean over bodies, or of ``body``'s curve; NaN for a seed without such points (a run that
+    ended short)."""
     lines = [curve.mean_over_bodies() if body is None else curve.returns[body] for curve in curves]
-    values = np.array([final_value(line, settings, environment_set) for line in lines])
-    return Final(values[np.isfinite(values)])
+    return Final(np.array([final_value(line, settings, environment_set) for line in lines]))
 
 
 def final_value(line: Mapping[int, float], settings: Settings, environment_set: str) -> float:
@@ -61,7 +71,9 @@ def final_value(line: Mapping[int, float], settings: Settings, environment_set: 
 
 
 def welch(a: Final, b: Final) -> float:
-    """Two-sided p-value of Welch's t-test (unequal variances) that the two seed samples share a mean."""
+    """Two-sided p-value of Welch's t-test (unequal variances) that the two seed samples share a mean (the
+    seeds with a final return); NaN with fewer than two a side."""
+    a, b = a.finite(), b.finite()
     if len(a.values) < 2 or len(b.values) < 2:
         return math.nan
     return float(stats.ttest_ind(a.values, b.values, equal_var=False).pvalue)
@@ -69,7 +81,8 @@ def welch(a: Final, b: Final) -> float:
 
 def welch_statistic(a: Final, b: Final) -> tuple[float, float, float]:
     """Welch's t of ``b``'s mean less ``a``'s, its degrees of freedom (Welch-Satterthwaite) and the standard
-    error of the difference."""
+    error of the difference (the seeds with a final return)."""
+    a, b = a.finite(), b.finite()
     va, vb = (np.var(final.values, ddof=1) / len(final.values) for final in (a, b))
     error = math.sqrt(va + vb)
     freedom = (va + vb) ** 2 / (va**2 / (len(a.values) - 1) + vb**2 / (len(b.values) - 1))
