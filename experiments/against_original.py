@@ -209,10 +209,16 @@ def _surplus_lines(originals: Sequence[OriginalRun], rows: Sequence[Mapping[str,
         ]
     if rows:
         stored, slots = ours_surplus(rows), ours_surplus(rows, "env_steps")
+        seeds = len({int(row["seed"]) for row in rows})
+        told = (
+            f"stored {min(stored):.2f}-{max(stored):.2f}x the transitions they counted"
+            + ("" if len(stored) == seeds else f" ({len(stored)} of {seeds} seeds record what they stored)")
+            if stored
+            else "did not record the transitions they stored (runs written before stored_steps)"
+        )
         lines += [
             "",
-            f"swat_jax's seeds stored {min(stored):.2f}-{max(stored):.2f}x the transitions they counted (the "
-            f"same lock-step rounds; its curves are binned by counted steps), in "
+            f"swat_jax's seeds {told} (the same lock-step rounds; its curves are binned by counted steps), in "
             f"{min(slots):.2f}-{max(slots):.2f}x collection slots per counted step: the rest are slots a seed "
             "waited, storing nothing, from its round's end to its chunk's end.",
         ]

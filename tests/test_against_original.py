@@ -290,6 +290,10 @@ def test_our_last_round_past_the_budget_is_binned_as_the_originals_and_a_short_r
     assert f"{runs.OURS} seed 1 ended at the 300-step point, short of" in lines and "seed 0" not in lines
     surplus = "\n".join(against._surplus_lines([], finished + short))
     assert "stored 1.50-1.50x the transitions" in surplus and "2.00-2.00x collection slots" in surplus
+    older = [{k: v for k, v in row.items() if k != "stored_steps"} for row in finished]
+    surplus = "\n".join(against._surplus_lines([], older + short))
+    assert "stored 1.50-1.50x the transitions they counted (1 of 2 seeds record what they stored)" in surplus
+    assert "did not record" in "\n".join(against._surplus_lines([], older))
 
 
 def test_the_pooled_test_combines_the_sets_one_sided_welch_tests():

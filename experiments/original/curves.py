@@ -114,10 +114,14 @@ def ours_curves(
 
 def ours_surplus(rows: Sequence[Mapping[str, float]], column: str = "stored_steps") -> list[float]:
     """Per seed, the transitions swat_jax stored per step it counted, at its last row (``column``
-    ``env_steps``: the collection slots it took, those a seed waited for its round's updates included; rows
-    written before ``stored_steps`` existed count those)."""
+    ``env_steps``: the collection slots it took, those a seed waited for its round's updates included); the
+    seeds whose rows lack ``column`` (runs written before ``stored_steps`` existed) are left out."""
     last = {int(row["seed"]): row for row in rows}
-    return [row.get(column, row["env_steps"]) / max(row["counted_steps"], 1) for row in last.values()]
+    return [
+        row[column] / max(row["counted_steps"], 1)
+        for row in last.values()
+        if math.isfinite(row.get(column, math.nan))
+    ]
 
 
 def curve_points(environment_set: str, sides: Mapping[str, Sequence[SeedCurves]]) -> list[CurvePoint]:
