@@ -191,9 +191,9 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
-rounds, its budget in stored steps); every other is its preset at the scale's sizes and hyperparameters
+rounds, stopping at the original's counted budget); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
-per body, chunk K, U updates per iteration and batch B per body (the recipe search, docs/training.md),
+per body, chunk K, U updates per iteration and batch B per body (the recipe search, experiments/LAB.md),
 ``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
