@@ -3,7 +3,7 @@
 - body.py: one body as a functional environment, ``reset(rng) -> state``, ``step(state, action) -> state``;
   with variants of the body, one program steps them all (``Variant``).
 - multi_task.py: K bodies x n copies in one jitted step, padded to one limb count, automatic resets.
-- observation.py: the per-limb observation (the benchmark's table, README "Environments") as a pure function.
+- observation.py: the per-limb observation (the benchmark's table, docs/bodies-and-environments.md "Environments") as a pure function.
 - physics.py: one MJX timestep, with an RK4 integrator that compiles faster than ``mjx.step``'s.
 """
 

@@ -1,13 +1,13 @@
 """One body as a functional MuJoCo MJX environment: ``reset(rng) -> state``, ``step(state, action) -> state``.
 
-Exactly the modular-locomotion benchmark (README, "Environments"): frame skip 4, the per-limb observation of observation.py, the
+Exactly the modular-locomotion benchmark (docs/bodies-and-environments.md, "Environments"): frame skip 4, the per-limb observation of observation.py, the
 family's reward, termination and reset noise (swat_jax/morphology/families.py), and the 1000-step time
 limit reported as truncation, not termination. One action per limb and hinge slot ([n] planar, [n, 3]
 in 3D); the torso's are ignored and the others reach their motors through the limb-to-motor map,
 clipped to [-1, 1]. A body of a 3D family (SGRL's benchmark) walks toward a target point
 (:mod:`swat_jax.envs.walk_to_target`), which its state carries.
 
-Two decisions beyond the benchmark text, both documented in the README:
+Two decisions beyond the benchmark text, both documented in docs/bodies-and-environments.md and docs/fidelity.md:
 - Observations are computed from the kinematics of the state after the step, or, with
   ``stale_kinematics``, as the original code reads them: MuJoCo's ``mj_step`` leaves in its derived
   fields the positions of the last integrator stage (before the last integration: the previous state for

@@ -1,6 +1,6 @@
 """The benchmark's family constants: limb-type vocabulary, reward, termination and reset noise.
 
-One table row per family (README, "Environments (MuJoCo MJX)", states what they mean); the few
+One table row per family (docs/bodies-and-environments.md, "Environments (MuJoCo MJX)", states what they mean); the few
 bodies whose numbers differ from their family's (termination heights that grow with leg length, and
 the five Animal-Walkers, each with its own reward and termination) are listed below it by name.
 The 3D families (SGRL's benchmark: a free torso, up to three hinges per limb, a target to walk

@@ -114,7 +114,8 @@ def _check_xml(path: Path) -> ET.Element:
             path,
             f"not a MuJoCo file: its root element is <{root.tag}>, an MJCF body file's is <mujoco>; "
             "write the body in MJCF (a URDF can be converted: load it with MuJoCo and save it with "
-            "mujoco.mj_saveLastXML, then follow the body conventions of the README)",
+            "mujoco.mj_saveLastXML, then follow the body conventions of docs/bodies-and-environments.md, "
+            "'Bringing a new body')",
         )
     return root
 
