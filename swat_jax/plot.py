@@ -274,11 +274,10 @@ def diagnostics_figure(run: RunMetrics, bodies: Sequence[str]) -> Figure:
     grid = figure.subplots(len(DIAGNOSTIC_ROWS), len(bodies), squeeze=False, sharex=True)
     for row_axes, (columns, label) in zip(grid, DIAGNOSTIC_ROWS, strict=True):
         for axes, body in zip(row_axes, bodies, strict=True):
+            by_column = [seed_curves([run], f"{column}/{body}") for column in columns]
             for index, seed in enumerate(seeds):
-                for column, style in zip(columns, ("-", "--"), strict=False):
-                    curve = seed_curves([RunMetrics(run.config, _seed_rows(run, seed))], f"{column}/{body}")[
-                        0
-                    ]
+                for curves, style in zip(by_column, ("-", "--"), strict=False):
+                    curve = curves[index]
                     steps = sorted(curve)
                     axes.plot(steps, [curve[step] for step in steps], style, color=f"C{index % 10}",
                               marker="." if len(steps) < 20 else None,
@@ -291,10 +290,6 @@ def diagnostics_figure(run: RunMetrics, bodies: Sequence[str]) -> Figure:
     grid[0][-1].legend()
     figure.tight_layout()
     return figure
-
-
-def _seed_rows(run: RunMetrics, seed: int) -> list[dict[str, float]]:
-    return [row for row in run.rows if int(row["seed"]) == seed]
 
 
 def plot_diagnostics(run_dir: str | Path, output: str | Path, *, bodies: Sequence[str] = ()) -> Figure:
