@@ -99,6 +99,8 @@ class Candidate:
     mean)."""
     reward_scaling: bool | None = None
     """Each body's rewards divided by the spread of its discounted returns (``--td3.reward-scaling``)."""
+    action_penalty: float | None = None
+    """Weight of the actor's penalty on its pre-tanh outputs squared (``--td3.action-penalty``)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -115,6 +117,7 @@ class Candidate:
                 n_step=self.n_step,
                 target_pessimism=self.pessimism,
                 reward_scaling=self.reward_scaling,
+                action_penalty=self.action_penalty,
             ),
         )
         if self.c51:
@@ -189,12 +192,14 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-rscale-2dev": Candidate(reward_scaling=True, pessimism=1.0),
     "fast-rscale-mean-2dev": Candidate(reward_scaling=True, pessimism=0.0),
     "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
+    "fast-ap0.01-2dev": Candidate(action_penalty=0.01),
+    "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, stopping at the original's counted budget); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, experiments/LAB.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling (``paper-flax``: the
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling, ``-apW`` with the actor's action penalty W (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
@@ -305,6 +310,8 @@ def candidate_curve(
 
 
 def original_curve(original_out: Path, settings: Settings, environment_set: str) -> Curve | None:
+    """The original's finished runs of ``environment_set`` in ``original_out`` (seeds 0 to ``settings.seeds``
+    - 1), as one curve; None if none finished."""
     runs = [run for run in original_runs(original_out, settings, environment_set) if run.finished()]
     if not runs:
         return None
@@ -377,10 +384,13 @@ def set_section(
     names: Sequence[str],
     window: int,
     horizon: float,
+    original_seeds: int,
 ) -> list[str]:
-    """Figure, CSV and the Markdown section of one set."""
+    """Figure, CSV and the Markdown section of one set, against the original's first ``original_seeds`` seeds."""
     timings = read_timings(out)
-    original = original_curve(original_out, settings, environment_set)
+    original = original_curve(
+        original_out, dataclasses.replace(settings, seeds=original_seeds), environment_set
+    )
     if original is None:
         raise GridError(
             f"no finished original runs of {environment_set} at scale {settings.name} in {original_out}/original; "
@@ -393,7 +403,10 @@ def set_section(
     label = get_set(environment_set).description or environment_set
     curves = [original, *candidates]
     budget = settings.budget(environment_set)
-    figure(curves, target, budget, f"{label}, {settings.seeds} seeds", out / f"{environment_set}.png")
+    seeds = f"{settings.seeds} seeds" + (
+        "" if original_seeds == settings.seeds else f", the original's {len(original.returns)}"
+    )
+    figure(curves, target, budget, f"{label}, {seeds}", out / f"{environment_set}.png")
     write_csv(curves, out / f"{environment_set}.csv")
     reference = smoothed_crossing(original.points(), target, window) or original.points()[-1][:2]
     lines = [
@@ -452,11 +465,12 @@ def body_finals_table(original: Curve, candidates: Sequence[Curve]) -> list[str]
 def stranded_table(original: Curve, candidates: Sequence[Curve]) -> list[str]:
     """Per body and configuration, the seeds whose final return there is below every seed of the
     original's: where a recipe strands seeds on a plateau (a seed that never walks) rather than learning
-    a little less on every seed. Four seeds drawn like the original's four fall below all of them by chance
-    about one time in five each."""
+    a little less on every seed. A seed drawn like the original's N falls below all of them by chance one
+    time in N + 1 (1 in 5 against 4 seeds)."""
     bodies = list(original.body_finals)
+    chance = len(original.finals.values) + 1
     lines = [
-        "Seeds below the original's lowest seed on each body (stranded seeds; by chance alone about 1 in 5):",
+        f"Seeds below the original's lowest seed on each body (stranded seeds; by chance alone about 1 in {chance}):",
         "",
         f"| configuration | {' | '.join(bodies)} | all bodies |",
         f"|---|{'---|' * (len(bodies) + 1)}",
@@ -481,7 +495,11 @@ def report(
     window: int,
     horizon: float,
     argv,
+    original_seeds: int | None = None,
 ) -> Path:
+    """``time_to_return.md`` in ``out``: every set's section, against the original's first
+    ``original_seeds`` seeds (None: as many as ``settings.seeds``)."""
+    original_seeds = original_seeds or settings.seeds
     versions = ", ".join(f"{name} {version}" for name, version in software_versions().items())
     s = settings
     lines = [
@@ -492,7 +510,8 @@ def report(
         f"- Machine: {cpu_model()}, {host_cores()} cores; {versions}",
         f"- Every run: SWAT of width {s.width}, {s.heads} heads, {s.layers} layers, feed-forward {s.feedforward}; "
         f"learning rate {s.learning_rate}; {s.random_steps:,} random-action steps per body; replay "
-        f"{s.capacity:,} per body; {s.seeds} seeds. The original: its committed runs in {original_out}, one "
+        f"{s.capacity:,} per body; {s.seeds} seeds. The original: its committed runs in {original_out} (seeds 0 to "
+        f"{original_seeds - 1}), one "
         "process per seed on one core. swat_jax: every seed in one program on all cores.",
         f"- Machine seconds per seed: wall clock x cores used / seeds at once, start-up and compilation "
         f"included. A curve reaches R at its first point where the mean over seeds, smoothed by a trailing "
@@ -506,7 +525,10 @@ def report(
         "",
     ]
     for environment_set in sets:
-        lines += [*set_section(out, original_out, settings, environment_set, names, window, horizon), ""]
+        section = set_section(
+            out, original_out, settings, environment_set, names, window, horizon, original_seeds
+        )
+        lines += [*section, ""]
     path = out / "time_to_return.md"
     path.write_text("\n".join(lines))
     return path
@@ -525,6 +547,9 @@ class TimeToReturnCommand:
     """swat_jax configurations to train (names of CANDIDATES: paper, fast, fast-c4-k16-u64-b100, ...; default all)."""
     seeds: int | None = None
     """Seeds of every configuration; None: the scale's."""
+    original_seeds: int | None = None
+    """The original's seeds in --original-from that R, the Welch tests and the stranded-seed count use (its
+    seeds 0 to N - 1); None: --seeds."""
     steps: int | None = None
     """Counted environment steps per seed on every set, summed over bodies: the original's budget, which its runs in --original-from must have run (against_original.py --steps); None: the scale's."""
     window: int = 3
@@ -577,6 +602,7 @@ def main(argv: list[str] | None = None) -> int:
             args.window,
             args.horizon,
             argv,
+            args.original_seeds,
         )
 
     return exit_status(work)

@@ -102,6 +102,10 @@ def test_the_stranded_table_counts_seeds_below_every_seed_of_the_original():
     original = curve(ttr.ORIGINAL, [300.0, 260.0, 290.0, 310.0])
     lines = ttr.stranded_table(original, [curve("fast", [44.0, 50.0, 270.0, 320.0])])
     assert "| fast | 2 of 4 | 2 of 4 |" in lines, "the two seeds that never walk; 270 is above 260"
+    assert "by chance alone about 1 in 5" in lines[0]
+    eight = curve(ttr.ORIGINAL, [300.0, 260.0, 290.0, 310.0, 280.0, 240.0, 330.0, 250.0])
+    lines = ttr.stranded_table(eight, [curve("fast", [44.0, 50.0, 270.0, 320.0])])
+    assert "| fast | 2 of 4 | 2 of 4 |" in lines and "about 1 in 9" in lines[0], "against 8 seeds"
 
 
 def test_every_candidate_is_the_configuration_it_was_measured_with(tmp_path):
@@ -168,6 +172,17 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
     assert "done (600 steps), kept" in capsys.readouterr().err
     assert ttr.main([*argv, "--candidates", "fast", "paper", "--report-only"]) == 0
     assert "| paper |" not in (out / "time_to_return.md").read_text(), "no paper run: left out"
+    third = runs.original_runs(original_out, dataclasses.replace(MICRO, seeds=3), "hopper")[2]
+    write_original_seed(
+        third,
+        [150, 300, 600],
+        {body: [12.0, 22.0, 18.0] for body in ("hopper_3", "hopper_4", "hopper_5")},
+        [30.0, 60.0, 90.0],
+    )
+    assert ttr.main([*argv, "--report-only", "--original-seeds", "3"]) == 0
+    with_third = (out / "time_to_return.md").read_text()
+    assert "R = 19.0" in with_third and "(seeds 0 to 2)" in with_third, "R from the original's 3 seeds"
+    assert f"| {ttr.ORIGINAL} | 3 |" in with_third and "| fast | 2 |" in with_third
     assert not (out / "runs" / "hopper-paper").exists()
     capsys.readouterr()
     started = []

@@ -55,6 +55,12 @@ def action_mask(structure: StructureBatch) -> jax.Array:
     return structure.limb_mask if motors_per_limb(structure) == 1 else structure.motor_mask
 
 
+def motor_slots(structure: StructureBatch) -> jax.Array:
+    """The action slots that drive a motor, in the actions' shape: [limbs] planar (M = 1), [limbs, M] in 3D
+    (:attr:`~swat_jax.morphology.StructureBatch.motor_mask`: not the torso, not padding)."""
+    return structure.motor_mask if motors_per_limb(structure) > 1 else structure.motor_mask[..., 0]
+
+
 def limb_action_features(actions: jax.Array) -> jax.Array:
     """Each limb's actions as input features: [batch, limbs] -> [batch, limbs, 1]; [batch, limbs, M] as is."""
     return actions[..., None] if actions.ndim == 2 else actions
@@ -74,12 +80,13 @@ class Actor(nn.Module):
     config: NetworkConfig
 
     @nn.compact
-    def __call__(self, limb_obs: jax.Array, structure: StructureBatch) -> jax.Array:
+    def __call__(self, limb_obs: jax.Array, structure: StructureBatch, squash: bool = True) -> jax.Array:
         """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]
-        (M = 1) or [batch, limbs, M]."""
+        (M = 1) or [batch, limbs, M]; with ``squash`` False the outputs before the tanh (the actions are
+        their tanh). 0 at padded limbs and motors."""
         limb_obs = normalised(self.config, limb_obs, structure)
         outputs = limb_network(self.config, "policy", motors_per_limb(structure))(limb_obs, structure)
-        return jnp.where(action_mask(structure), jnp.tanh(outputs), 0.0)
+        return jnp.where(action_mask(structure), jnp.tanh(outputs) if squash else outputs, 0.0)
 
 
 class Critic(nn.Module):

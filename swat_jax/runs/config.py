@@ -317,6 +317,10 @@ class TrainConfig:
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
                 f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
             )
+        if not self.td3.action_penalty >= 0.0:
+            raise ConfigError(
+                f"--td3.action-penalty must be 0 (TD3's actor loss) or positive; got {self.td3.action_penalty}"
+            )
         if not 0.0 <= self.td3.target_pessimism <= 1.0:
             raise ConfigError(
                 f"--td3.target-pessimism must be in [0, 1] (1: the twin target critics' minimum, 0: their "

@@ -42,7 +42,7 @@ from flax import struct
 from swat_jax import axes
 from swat_jax.morphology.batch import LimbBucket, StructureBatch, bucket_slice, bucket_structures
 from swat_jax.networks.observation_stats import NORMALISER, STATS, accumulate, with_stats
-from swat_jax.networks.policies import LimbNetwork, Params, action_mask
+from swat_jax.networks.policies import LimbNetwork, Params, action_mask, motor_slots
 from swat_jax.td3.replay import Transitions
 from swat_jax.td3.reward_scaling import ReturnStats
 
@@ -82,6 +82,13 @@ class TD3Config:
     distributions)."""
     n_step: int = 1
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
+
+    action_penalty: float = 0.0
+    """Weight of a penalty on the actor's pre-tanh outputs: its loss adds action_penalty x the mean of their
+    squares over the body's real motors (the action regulariser of Andrychowicz et al. 2017, on tanh's input
+    instead of its output, so that its gradient does not vanish where tanh is flat). It keeps the policy off
+    its action bounds, where the critic's gradient vanishes and clipping removes half of the exploration
+    noise: the ostrich's dive plateau (docs/training.md). 0: TD3's loss."""
 
     reward_scaling: bool = False
     """Divide each task's rewards by the spread of its discounted returns so far (FastTD3's per-task reward normaliser; :mod:`swat_jax.td3.reward_scaling`), so that no body's returns outweigh the others' in the all-task loss (needs the all_tasks schedule)."""
@@ -367,9 +374,15 @@ class Learner:
         self, actor_params: Params, critic_params: Params, batch: Transitions, structure: StructureBatch
     ) -> jax.Array:
         def task_loss(batch: Transitions, structure: StructureBatch) -> jax.Array:
-            action = self.actor.apply(actor_params, batch.observation, structure)
-            q1, _ = self._q_values(critic_params, batch.observation, action, structure)
-            return -_masked_mean(q1, self._value_mask(structure.limb_mask))
+            outputs = self.actor.apply(actor_params, batch.observation, structure, squash=False)
+            q1, _ = self._q_values(critic_params, batch.observation, jnp.tanh(outputs), structure)
+            loss = -_masked_mean(q1, self._value_mask(structure.limb_mask))
+            if not self.config.action_penalty:
+                return loss
+            squares = jnp.square(outputs).reshape(outputs.shape[0], -1)
+            return loss + self.config.action_penalty * _masked_mean(
+                squares, motor_slots(structure).reshape(-1)
+            )
 
         return self._task_mean(jax.vmap(task_loss), batch, structure)
 
