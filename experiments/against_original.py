@@ -114,20 +114,9 @@ def compare(
 ) -> tuple[list[str], dict[str, Final]]:
     """Figure, CSV and the Markdown section of one set, and each side's final returns; ``seed_bodies`` of the
     set are tabulated seed by seed (none of them in the set: the body furthest from the original)."""
-    originals = [r for r in original_runs(out, settings, environment_set) if r.finished()]
-    sides = {}
-    if originals:
-        sides[ORIGINAL] = [original_curves(r) for r in originals]
-    seed_rows = [
-        (read_metrics(run.run_dir), timings.get(run.name))
-        for run in ours(out, settings, environment_set)
-        if (run.run_dir / "metrics.csv").is_file()
-    ]
+    originals, seed_rows = finished_runs(out, settings, environment_set, timings)
+    sides = side_curves(originals, seed_rows, settings, environment_set)
     rows = [row for mine, _ in seed_rows for row in mine]
-    if rows:
-        sides[OURS] = [
-            curve for mine, wall in seed_rows for curve in ours_curves(mine, settings, environment_set, wall)
-        ]
     if not sides:
         return [f"## {environment_set}\n\nNothing trained yet."], {}
     points = curve_points(environment_set, sides)
@@ -167,6 +156,37 @@ def compare(
         counts = ", ".join(f"{side} {len(final.finite().values)}" for side, final in finals.items())
         lines += ["", f"No test: Welch's needs two seeds a side with a final return ({counts})."]
     return lines, finals
+
+
+SeedRows = list[tuple[list[dict[str, float]], float | None]]
+"""swat_jax's seeds in a folder: each seed's metrics rows with its wall clock (None where none was recorded)."""
+
+
+def finished_runs(
+    out: Path, settings: Settings, environment_set: str, timings: Mapping[str, float]
+) -> tuple[list[OriginalRun], SeedRows]:
+    """The original's finished seeds in ``out`` and swat_jax's seeds that wrote metrics, with their wall clocks."""
+    originals = [r for r in original_runs(out, settings, environment_set) if r.finished()]
+    seed_rows = [
+        (read_metrics(run.run_dir), timings.get(run.name))
+        for run in ours(out, settings, environment_set)
+        if (run.run_dir / "metrics.csv").is_file()
+    ]
+    return originals, seed_rows
+
+
+def side_curves(
+    originals: Sequence[OriginalRun], seed_rows: SeedRows, settings: Settings, environment_set: str
+) -> dict[str, list[SeedCurves]]:
+    """Each side's seed curves on the grid, by side (a side without runs left out)."""
+    sides = {}
+    if originals:
+        sides[ORIGINAL] = [original_curves(r) for r in originals]
+    if any(mine for mine, _ in seed_rows):
+        sides[OURS] = [
+            curve for mine, wall in seed_rows for curve in ours_curves(mine, settings, environment_set, wall)
+        ]
+    return sides
 
 
 def _original_speed(originals: Sequence[OriginalRun], wall: float | None) -> tuple[str, str, str]:
@@ -383,23 +403,27 @@ def pooled_lines(finals: Mapping[str, tuple[Final, Final]]) -> list[str]:
         "| set | seeds a side | original | swat_jax | difference (90% interval) | Welch p | one-sided p |",
         "|---|---|---|---|---|---|---|",
     ]
-    one_sided = []
     for environment_set, (a, b) in finals.items():
         low, high = difference_interval(a, b)
-        one_sided.append(below(a, b))
         lines.append(
             f"| {get_set(environment_set).title} | {len(a.finite().values)}, {len(b.finite().values)} | {a.cell()} | {b.cell()} "
-            f"| {b.mean - a.mean:+.1f} ({low:+.1f}, {high:+.1f}) | {welch(a, b):.3f} | {one_sided[-1]:.3f} |"
+            f"| {b.mean - a.mean:+.1f} ({low:+.1f}, {high:+.1f}) | {welch(a, b):.3f} | {below(a, b):.3f} |"
         )
-    lower = sum(b.mean < a.mean for a, b in finals.values())
+    combined, lower, sign = pooled_test(finals)
     lines += [
         "",
         f"Stouffer's combination of the one-sided tests over the {len(finals)} sets: p = "
-        f"{stouffer(one_sided):.3f}; swat_jax lower on {lower} of {len(finals)} (sign test p = "
-        f"{sign_test(lower, len(finals)):.3f}).",
+        f"{combined:.3f}; swat_jax lower on {lower} of {len(finals)} (sign test p = {sign:.3f}).",
         "",
     ]
     return lines
+
+
+def pooled_test(finals: Mapping[str, tuple[Final, Final]]) -> tuple[float, int, float]:
+    """Over the sets' (original, swat_jax) final returns: Stouffer's combination of the one-sided tests that
+    swat_jax is lower, the number of sets on which it is lower, and the sign test's p of that number."""
+    lower = sum(b.mean < a.mean for a, b in finals.values())
+    return stouffer([below(a, b) for a, b in finals.values()]), lower, sign_test(lower, len(finals))
 
 
 # The command

@@ -262,6 +262,13 @@ def smoothed_crossing(points: Sequence[tuple[int, float, float, float]], target:
     return None
 
 
+def original_time(original: Curve, window: int) -> tuple[int, float]:
+    """(steps, machine seconds per seed) at which the original reaches R, its own final return: its smoothed
+    curve's first point at R, or its last point where the smoothed curve stays just below (the final return
+    averages the budget's last points)."""
+    return smoothed_crossing(original.points(), original.finals.mean, window) or original.points()[-1][:2]
+
+
 def machine_seconds(curves: Sequence[SeedCurves], cores: float, seeds_at_once: int) -> tuple[dict, ...]:
     """Each seed's wall clock at its grid points as machine seconds per seed."""
     return tuple({step: t * cores / seeds_at_once for step, t in c.seconds.items()} for c in curves)
@@ -299,14 +306,16 @@ def candidate_curve(
     name: str,
     timings: Mapping[str, float],
     horizon: float,
+    cores: int | None = None,
 ) -> Curve | None:
-    """Candidate ``name``'s curve up to the horizon, with its final returns at ``settings``' budget."""
+    """Candidate ``name``'s curve up to the horizon, with its final returns at ``settings``' budget; its
+    machine seconds for a run on ``cores`` (None: this machine's)."""
     longer = with_horizon(settings, environment_set, horizon)
     run = candidate_run(out, longer, environment_set, name)
     if not (run.run_dir / "metrics.csv").is_file():
         return None
     curves = ours_curves(read_metrics(run.run_dir), longer, environment_set, timings.get(run.name))
-    return _curve(name, curves, settings, environment_set, host_cores(), len(curves))
+    return _curve(name, curves, settings, environment_set, cores or host_cores(), len(curves))
 
 
 def original_curve(original_out: Path, settings: Settings, environment_set: str) -> Curve | None:
@@ -408,7 +417,7 @@ def set_section(
     )
     figure(curves, target, budget, f"{label}, {seeds}", out / f"{environment_set}.png")
     write_csv(curves, out / f"{environment_set}.csv")
-    reference = smoothed_crossing(original.points(), target, window) or original.points()[-1][:2]
+    reference = original_time(original, window)
     lines = [
         f"## {label}, {settings.budget(environment_set):,} steps",
         "",
