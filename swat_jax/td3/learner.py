@@ -374,11 +374,13 @@ class Learner:
         self, actor_params: Params, critic_params: Params, batch: Transitions, structure: StructureBatch
     ) -> jax.Array:
         def task_loss(batch: Transitions, structure: StructureBatch) -> jax.Array:
+            if not self.config.action_penalty:
+                action = self.actor.apply(actor_params, batch.observation, structure)
+                q1, _ = self._q_values(critic_params, batch.observation, action, structure)
+                return -_masked_mean(q1, self._value_mask(structure.limb_mask))
             outputs = self.actor.apply(actor_params, batch.observation, structure, squash=False)
             q1, _ = self._q_values(critic_params, batch.observation, jnp.tanh(outputs), structure)
             loss = -_masked_mean(q1, self._value_mask(structure.limb_mask))
-            if not self.config.action_penalty:
-                return loss
             squares = jnp.square(outputs).reshape(outputs.shape[0], -1)
             return loss + self.config.action_penalty * _masked_mean(
                 squares, motor_slots(structure).reshape(-1)
