@@ -27,11 +27,11 @@ import tyro
 
 from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.morphology import StructureBatch, get_set
+from swat_jax.morphology import Morphology, StructureBatch, get_set
 from swat_jax.morphology import load as load_body
 from swat_jax.networks import LimbNetwork, Params
 from swat_jax.runs.checkpoint import CheckpointError
-from swat_jax.runs.config import ConfigError
+from swat_jax.runs.config import ConfigError, TrainConfig
 from swat_jax.runs.trained import load_policy
 from swat_jax.serving import (
     FORMAT,
@@ -163,27 +163,8 @@ def export_policy(
     platforms = _checked_platforms(platforms)
     policy = load_policy(run_dir)
     config = policy.config
-    try:
-        body_set = get_set(config.env)
-    except ValueError as error:
-        raise ConfigError(f"{run_dir}: the run's environment set is not available: {error}") from error
-    train, test = body_set.split("train"), body_set.split("test")
-    bodies = [load_body(body) for body in train + test]
-    largest = max(bodies, key=lambda body: body.num_limbs)
-    if max_limbs is None:
-        max_limbs = largest.num_limbs
-    elif max_limbs < largest.num_limbs:
-        raise ExportError(
-            f"--max-limbs {max_limbs} is below the {largest.num_limbs} limbs of {largest.name}, a body of "
-            f"{config.env}; use at least {largest.num_limbs}"
-        )
-    network = config.network_config()
-    if network.traversals and max_limbs > network.max_traversal_positions:
-        raise ExportError(
-            f"--max-limbs {max_limbs} is more than the {network.max_traversal_positions} traversal positions "
-            f"{config.algo} has learned, so larger bodies could not be encoded; use at most "
-            f"{network.max_traversal_positions}"
-        )
+    bodies, train_count = _set_bodies(run_dir, config)
+    max_limbs = _checked_max_limbs(max_limbs, bodies, config)
     try:
         structures = policy.task_set(bodies, max_limbs=max_limbs).structure
     except ValueError as error:
@@ -201,13 +182,45 @@ def export_policy(
         env=config.env,
         env_steps=policy.info.env_steps,
         seed=policy.seeds[seed_index],
-        train_bodies=[body.name for body in bodies[: len(train)]],
-        test_bodies=[body.name for body in bodies[len(train) :]],
+        train_bodies=[body.name for body in bodies[:train_count]],
+        test_bodies=[body.name for body in bodies[train_count:]],
         reference_inorder=config.network.reference_inorder,
         torso_relative_x=config.envs.torso_relative_x,
-        network=dataclasses.asdict(network),
+        network=dataclasses.asdict(config.network_config()),
         platforms=list(platforms),
     )
+
+
+def _set_bodies(run_dir: str | Path, config: TrainConfig) -> tuple[list[Morphology], int]:
+    """The bodies of the run's environment set, its train split then its test split, and how many are train
+    bodies; ConfigError if the set is not available."""
+    try:
+        body_set = get_set(config.env)
+    except ValueError as error:
+        raise ConfigError(f"{run_dir}: the run's environment set is not available: {error}") from error
+    train = body_set.split("train")
+    return [load_body(body) for body in train + body_set.split("test")], len(train)
+
+
+def _checked_max_limbs(max_limbs: int | None, bodies: Sequence[Morphology], config: TrainConfig) -> int:
+    """The limb count the file's inputs are padded to: ``max_limbs``, or the largest of ``bodies`` for None;
+    ExportError if it is below that body's or beyond the traversal positions the run's network learned."""
+    largest = max(bodies, key=lambda body: body.num_limbs)
+    if max_limbs is None:
+        max_limbs = largest.num_limbs
+    elif max_limbs < largest.num_limbs:
+        raise ExportError(
+            f"--max-limbs {max_limbs} is below the {largest.num_limbs} limbs of {largest.name}, a body of "
+            f"{config.env}; use at least {largest.num_limbs}"
+        )
+    network = config.network_config()
+    if network.traversals and max_limbs > network.max_traversal_positions:
+        raise ExportError(
+            f"--max-limbs {max_limbs} is more than the {network.max_traversal_positions} traversal positions "
+            f"{config.algo} has learned, so larger bodies could not be encoded; use at most "
+            f"{network.max_traversal_positions}"
+        )
+    return max_limbs
 
 
 def _checked_platforms(platforms: Sequence[str]) -> tuple[str, ...]:

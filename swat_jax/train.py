@@ -248,7 +248,27 @@ def train(
     """
     program_cache_limit()
     experiment = Experiment.build(config, _chosen_devices(devices))
-    env = experiment.env
+    _print_start(experiment)
+    run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
+    checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
+    try:
+        state, info = _start_state(experiment, checkpoints, resume)
+        # Several hosts: every process trains and checkpoints its shards; process 0 writes the metrics.
+        primary = jax.process_index() == 0
+        metrics = MetricsWriter(run_dir, resumed_at=info.env_steps if resume else None) if primary else None
+        try:
+            return _loop(experiment, state, info, checkpoints, metrics, progress and primary, after_iteration)
+        finally:
+            if metrics is not None:
+                metrics.close()
+    finally:
+        checkpoints.close()
+
+
+def _print_start(experiment: Experiment) -> None:
+    """Print what the run trains (its network, bodies, copies and seeds), its limb buckets, its device mesh
+    and its replay buffers' memory (MemoryError, before anything is written, if they cannot fit)."""
+    config, env = experiment.config, experiment.env
     # Shapes only: initialising the actor eagerly compiles each of its operations.
     actor_parameters = param_count(jax.eval_shape(experiment.learner.actor.init, jax.random.PRNGKey(0)))
     print(
@@ -277,28 +297,22 @@ def train(
             episode_ends=config.td3.episode_ends,
         )
     )
-    run_dir = prepare_run_dir(config, resume=resume, overwrite=overwrite)
-    checkpoints = Checkpoints(run_dir, config.keep_checkpoints)
-    try:
-        for line in checkpoints.set_aside_damaged() if resume else ():
-            print(line)
-        if resume and checkpoints.latest_step() is not None:
-            state, info = experiment.restore_state(checkpoints)
-            print(f"resumed from {checkpoints.directory / str(info.env_steps)}")
-        else:
-            if resume:
-                print(f"no checkpoint in {checkpoints.directory} yet: starting the run from its saved config")
-            state, info = experiment.init_state(), experiment.checkpoint_info(0, 0, 0.0)
-        # Several hosts: every process trains and checkpoints its shards; process 0 writes the metrics.
-        primary = jax.process_index() == 0
-        metrics = MetricsWriter(run_dir, resumed_at=info.env_steps if resume else None) if primary else None
-        try:
-            return _loop(experiment, state, info, checkpoints, metrics, progress and primary, after_iteration)
-        finally:
-            if metrics is not None:
-                metrics.close()
-    finally:
-        checkpoints.close()
+
+
+def _start_state(
+    experiment: Experiment, checkpoints: Checkpoints, resume: bool
+) -> tuple[TrainState, CheckpointInfo]:
+    """The state the run starts from and its info: with ``resume``, the newest checkpoint's (damaged ones
+    set aside first), else, or where there is none yet, a fresh one."""
+    for line in checkpoints.set_aside_damaged() if resume else ():
+        print(line)
+    if resume and checkpoints.latest_step() is not None:
+        state, info = experiment.restore_state(checkpoints)
+        print(f"resumed from {checkpoints.directory / str(info.env_steps)}")
+        return state, info
+    if resume:
+        print(f"no checkpoint in {checkpoints.directory} yet: starting the run from its saved config")
+    return experiment.init_state(), experiment.checkpoint_info(0, 0, 0.0)
 
 
 def _replay_rows_flag(config: TrainConfig, num_bodies: int) -> tuple[str, int]:
@@ -331,77 +345,110 @@ def _loop(
     progress: bool,
     after_iteration: Callable[[int], None] | None,
 ) -> RunResult:
+    """Iterate from where ``info`` says the run is until it is finished or a stop is requested: a metrics row
+    per seed every log interval (with the evaluation's columns), a checkpoint every checkpoint interval
+    and one at the end."""
     config, env = experiment.config, experiment.env
     per_iteration = config.steps_per_iteration(env.num_bodies)
     total = config.iterations(env.num_bodies)
     log_every = max(1, round(config.metrics_interval() / per_iteration))
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
-    done = info.iterations
-    seconds = info.seconds
-    counted = fetch(state.counted)
+    done, seconds, counted = info.iterations, info.seconds, fetch(state.counted)
     window = MetricsWindow(config.seeds, env.num_bodies, info.metrics_window, config.iteration.diagnostics)
-
-    start = time.perf_counter()
-    print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
-    iteration = experiment.compiled_iteration(state)
-    print(f"compiled in {time.perf_counter() - start:.1f} s")
-    evaluation = experiment.compiled_evaluation() if config.eval_interval else None
-
+    iteration, evaluation = _compiled_programs(experiment, state)
     saved = done
-
-    def save() -> None:
-        nonlocal saved
-        info = experiment.checkpoint_info(
-            done * per_iteration, done, seconds, metrics_window=window.to_json()
-        )
-        checkpoints.save(state, network_items(state.learner), info)
-        saved = done
-
-    with StopRequest() as stop:
-        bar = tqdm(
+    with (
+        StopRequest() as stop,
+        tqdm(
             total=total * per_iteration,
             initial=done * per_iteration,
             unit="step",
             disable=not progress,
             smoothing=0.1,
-        )
+        ) as bar,
+    ):
         timed, window_start = 0, time.perf_counter()
-        try:
-            while not _finished(config, done, total, counted) and not stop.requested:
-                state, step_metrics = iteration(state)
-                # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
-                fetched = fetch(step_metrics)
-                window.add(fetched)
-                counted = fetched["counted_steps"]
-                done, timed = done + 1, timed + 1
-                bar.update(per_iteration)
-                if done % log_every == 0 or _finished(config, done, total, counted):
-                    now = time.perf_counter()
-                    seconds += now - window_start
-                    rate = timed * per_iteration / (now - window_start)
-                    rows = _log_rows(window, config, env.body_names, done, rate)
-                    if evaluation is not None:
-                        due = done == total or _crossed(
-                            config.eval_interval, done, window.iterations, per_iteration
-                        )
-                        rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
-                    for row in rows if metrics is not None else ():
-                        metrics.write(row)
-                    bar.set_postfix(_progress_summary(rows))
-                    window.clear()
-                    timed, window_start = 0, now
-                if done % checkpoint_every == 0:
-                    save()
-                if after_iteration is not None:
-                    after_iteration(done)
-            if saved != done:
-                save()
-        finally:
-            bar.close()
+        while not _finished(config, done, total, counted) and not stop.requested:
+            state, step_metrics = iteration(state)
+            # One iteration in flight: the bar counts finished work, and a stop waits for one iteration.
+            fetched = fetch(step_metrics)
+            window.add(fetched)
+            counted = fetched["counted_steps"]
+            done, timed = done + 1, timed + 1
+            bar.update(per_iteration)
+            if done % log_every == 0 or _finished(config, done, total, counted):
+                now = time.perf_counter()
+                seconds += now - window_start
+                rate = timed * per_iteration / (now - window_start)
+                rows = _write_metrics(experiment, window, evaluation, state, metrics, done, rate)
+                bar.set_postfix(_progress_summary(rows))
+                window.clear()
+                timed, window_start = 0, now
+            if done % checkpoint_every == 0:
+                saved = _save(experiment, checkpoints, state, done, seconds, window)
+            if after_iteration is not None:
+                after_iteration(done)
+        if saved != done:
+            _save(experiment, checkpoints, state, done, seconds, window)
     if done == total and not _counted_enough(config, counted):
         print(_short_of_counted(config, counted, done * per_iteration))
     finished = _finished(config, done, total, counted)
     return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=not finished)
+
+
+def _compiled_programs(
+    experiment: Experiment, state: TrainState
+) -> tuple[
+    Callable[[TrainState], tuple[TrainState, dict[str, Any]]], Callable[[Any, jax.Array], Episodes] | None
+]:
+    """The training iteration compiled for ``state`` (saying how long that took), and with evaluations
+    during training (``--eval-interval``) the evaluation, compiled at its first call."""
+    start = time.perf_counter()
+    print("compiling the training iteration (minutes on CPU the first time; cached afterwards)...")
+    iteration = experiment.compiled_iteration(state)
+    print(f"compiled in {time.perf_counter() - start:.1f} s")
+    return iteration, experiment.compiled_evaluation() if experiment.config.eval_interval else None
+
+
+def _write_metrics(
+    experiment: Experiment,
+    window: MetricsWindow,
+    evaluation: Callable[[Any, jax.Array], Episodes] | None,
+    state: TrainState,
+    metrics: MetricsWriter | None,
+    done: int,
+    rate: float,
+) -> list[dict[str, float]]:
+    """The metrics rows of the log interval that ends after ``done`` iterations, one per seed, with the
+    ``eval/*`` columns of an evaluation where one is due (with evaluations during training); written where
+    ``metrics`` is (process 0) and returned. ``rate`` is one seed's environment steps/s."""
+    config, env = experiment.config, experiment.env
+    per_iteration = config.steps_per_iteration(env.num_bodies)
+    rows = _log_rows(window, config, env.body_names, done, rate)
+    if evaluation is not None:
+        due = done == config.iterations(env.num_bodies) or _crossed(
+            config.eval_interval, done, window.iterations, per_iteration
+        )
+        rows = _with_evaluation(rows, evaluation if due else None, state, env.body_names)
+    for row in rows if metrics is not None else ():
+        metrics.write(row)
+    return rows
+
+
+def _save(
+    experiment: Experiment,
+    checkpoints: Checkpoints,
+    state: TrainState,
+    done: int,
+    seconds: float,
+    window: MetricsWindow,
+) -> int:
+    """Checkpoint ``state`` after ``done`` iterations and ``seconds`` of training, with the metrics window
+    it is in; returns ``done``, the iterations saved."""
+    per_iteration = experiment.config.steps_per_iteration(experiment.env.num_bodies)
+    info = experiment.checkpoint_info(done * per_iteration, done, seconds, metrics_window=window.to_json())
+    checkpoints.save(state, network_items(state.learner), info)
+    return done
 
 
 def _counted_enough(config: TrainConfig, counted: np.ndarray) -> bool:

@@ -62,6 +62,20 @@ class EpisodeStats:
             count=jnp.zeros(shape, jnp.int32),
         )
 
+    def plus(self, bodies: Sequence[EnvState], logged: jax.Array) -> EpisodeStats:
+        """These sums and the episodes that ``logged`` [*S, K, n] marks among ``bodies``' copies (K body
+        states [*S, n, ...], stepped), by their returns and lengths."""
+        axis = logged.ndim - 2
+
+        def logged_sum(values: list[jax.Array]) -> jax.Array:
+            return jnp.sum(jnp.where(logged, jnp.stack(values, axis), 0), axis=-1)
+
+        return EpisodeStats(
+            return_sum=self.return_sum + logged_sum([body.episode_return for body in bodies]),
+            length_sum=self.length_sum + logged_sum([body.episode_length for body in bodies]),
+            count=self.count + jnp.sum(logged, axis=-1, dtype=jnp.int32),
+        )
+
 
 @struct.dataclass
 class MultiTaskState:
@@ -235,21 +249,10 @@ class MultiTaskEnv:
         ]
         stepped = [_unfolded(after_step, seeds, self.copies) for after_step, _ in both]
         axis = len(seeds)
-        finished = jnp.stack([body.done for body in stepped], axis)
-        if self.lock_step:
-            bookkeeping = lock_step_round(state.round_ended, finished)
-        else:
-            bookkeeping = RoundStep(
-                restart=finished,
-                round_ended=state.round_ended,
-                counted=jnp.ones_like(finished),
-                logged=finished,
-                round_over=jnp.zeros(seeds, bool),
-            )
-        restart, round_ended, logged = bookkeeping.restart, bookkeeping.round_ended, bookkeeping.logged
+        bookkeeping = self._round_step(state.round_ended, jnp.stack([body.done for body in stepped], axis))
         continued = tuple(
             _unfolded(
-                _where_done(_folded(restart[..., k, :], seeds, self.copies), fresh, after_step),
+                _where_done(_folded(bookkeeping.restart[..., k, :], seeds, self.copies), fresh, after_step),
                 seeds,
                 self.copies,
             )
@@ -263,23 +266,28 @@ class MultiTaskEnv:
             counted=bookkeeping.counted,
             round_over=bookkeeping.round_over,
         )
-
-        def logged_sum(values: list[jax.Array]) -> jax.Array:
-            return jnp.sum(jnp.where(logged, jnp.stack(values, axis), 0), axis=-1)
-
-        episodes = EpisodeStats(
-            return_sum=state.episodes.return_sum + logged_sum([b.episode_return for b in stepped]),
-            length_sum=state.episodes.length_sum + logged_sum([b.episode_length for b in stepped]),
-            count=state.episodes.count + jnp.sum(logged, axis=-1, dtype=jnp.int32),
-        )
         next_state = MultiTaskState(
             bodies=continued,
             observation=self._padded_observation(continued, seeds),
             rng=rng,
-            episodes=episodes,
-            round_ended=round_ended,
+            episodes=state.episodes.plus(stepped, bookkeeping.logged),
+            round_ended=bookkeeping.round_ended,
         )
         return next_state, result
+
+    def _round_step(self, round_ended: jax.Array, finished: jax.Array) -> RoundStep:
+        """One step's bookkeeping from the copies whose episode it ended, ``finished`` [*S, K, n]: the
+        lock-step round's (:func:`lock_step_round`), or without rounds every finished copy restarts and
+        logs its episode, and every step counts."""
+        if self.lock_step:
+            return lock_step_round(round_ended, finished)
+        return RoundStep(
+            restart=finished,
+            round_ended=round_ended,
+            counted=jnp.ones_like(finished),
+            logged=finished,
+            round_over=jnp.zeros(finished.shape[:-2], bool),
+        )
 
     def _body_action(self, action: jax.Array, task: int, limbs: int) -> jax.Array:
         """Task ``task``'s actions [*S, n, limbs(, M)] of ``action`` [*S, K, n, L(, M)]."""

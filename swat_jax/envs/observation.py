@@ -212,16 +212,9 @@ def limb_observation_3d(
         jnp.asarray, (qpos, xpos, cvel, root_com, joint_axes, target)
     )
     n = xpos.shape[0]
-    has = layout.has_joint
     linear, angular = frame_velocities(xpos, cvel, root_com)
-    direction = target - xpos[0, :2]
-    direction = direction / jnp.maximum(jnp.linalg.norm(direction), DIRECTION_EPSILON)
-    angle = jnp.where(has, qpos[layout.joint_qpos_address], 0.0)
-    low, high = layout.joint_range[..., 0], layout.joint_range[..., 1]
-    scaled = (jnp.degrees(angle) - low) / jnp.where(has, high - low, 1.0)
-    joint = jnp.stack([scaled, (180.0 + low) / 360.0, (180.0 + high) / 360.0], axis=-1)
-    joint = jnp.where(has[..., None], joint, ABSENT_JOINT)
-    axes = jnp.where(has[..., None], joint_axes[layout.joint_id], 0.0)
+    direction = heading_to_target(xpos[0, :2], target)
+    axes, angle, joint = hinge_slots_3d(layout, qpos, joint_axes)
     return jnp.concatenate(
         [
             xpos - xpos[0],
@@ -237,3 +230,27 @@ def limb_observation_3d(
         ],
         axis=-1,
     )
+
+
+def heading_to_target(torso: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
+    """[2] the unit direction in the floor plane from the torso's (x, y) ``torso`` [2] to ``target`` [2]; 0
+    where the torso stands on it."""
+    direction = target - torso
+    return direction / jnp.maximum(jnp.linalg.norm(direction), DIRECTION_EPSILON)
+
+
+def hinge_slots_3d(
+    layout: ObservationLayout, qpos: jnp.ndarray, joint_axes: jnp.ndarray
+) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    """What a 3D limb observes of its M hinge slots (:func:`limb_observation_3d`): the world axes [n, M, 3]
+    (0 where a slot has no hinge), the angles [n, M] in radians (0 where none), and per slot the angle
+    scaled to [0, 1] over its range and the range ends as (180 + degrees) / 360 [n, M, 3] (ABSENT_JOINT
+    where none)."""
+    has = layout.has_joint
+    angle = jnp.where(has, qpos[layout.joint_qpos_address], 0.0)
+    low, high = layout.joint_range[..., 0], layout.joint_range[..., 1]
+    scaled = (jnp.degrees(angle) - low) / jnp.where(has, high - low, 1.0)
+    joint = jnp.stack([scaled, (180.0 + low) / 360.0, (180.0 + high) / 360.0], axis=-1)
+    joint = jnp.where(has[..., None], joint, ABSENT_JOINT)
+    axes = jnp.where(has[..., None], joint_axes[layout.joint_id], 0.0)
+    return axes, angle, joint

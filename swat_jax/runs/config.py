@@ -218,7 +218,9 @@ class TrainConfig:
     def __post_init__(self) -> None:
         self._resolve_paths()
         self._check_run()
-        self._check_training()
+        self._check_iteration()
+        self._check_replay()
+        self._check_td3()
         try:
             self.network_config()
         except ValueError as error:
@@ -262,8 +264,9 @@ class TrainConfig:
         if self.eval_interval < 0:
             raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
 
-    def _check_training(self) -> None:
-        """The iteration and TD3 settings (their dataclasses live below this layer and raise no ConfigError)."""
+    def _check_iteration(self) -> None:
+        """The iteration's sizes, schedule, rounds, exploration noise and random steps (IterationConfig lives
+        below this layer and raises no ConfigError)."""
         for name in ("chunk", "updates", "capacity"):
             require_positive(f"--iteration.{name}", getattr(self.iteration, name))
         if self.iteration.schedule not in SCHEDULES:
@@ -285,6 +288,9 @@ class TrainConfig:
             raise ConfigError(
                 f"--iteration.random-steps must be 0 or more, got {self.iteration.random_steps}"
             )
+
+    def _check_replay(self) -> None:
+        """The replay rings hold at least one step of every copy."""
         if self.iteration.capacity < self.envs.copies:
             raise ConfigError(
                 f"--iteration.capacity ({self.iteration.capacity}) must hold at least one step of every copy "
@@ -298,6 +304,10 @@ class TrainConfig:
                     f"least one step of every copy (--envs.copies {self.envs.copies}); raise it, or give "
                     "--iteration.capacity-all None"
                 )
+
+    def _check_td3(self) -> None:
+        """The TD3 settings, and those that need a schedule or a network (TD3Config lives below this layer and
+        raises no ConfigError)."""
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
         require_positive("--td3.n-step", self.td3.n_step)

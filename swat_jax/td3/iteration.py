@@ -4,6 +4,10 @@
         original:  lax.scan over tasks (lax.scan(sample the task's ring + TD3 update, updates))
         all_tasks: lax.scan(sample every ring + TD3 update, updates)
 
+The steps are named pieces that another training loop can reuse: :class:`Collection` steps every copy
+and stores what it collected (a step, a chunk), and :class:`TrainIteration` chains a chunk with the
+learner's statistics, the schedule's updates, the metrics and the diagnostics.
+
 Tasks are the batch axis of collection: the multi-task environment steps every body's copies and the
 replay buffer holds one ring per task. The update schedule (:attr:`IterationConfig.schedule`) is the
 reference code's by default: the tasks one after another, each taking its run of updates on its own
@@ -33,7 +37,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from swat_jax import axes
-from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState
+from swat_jax.envs.multi_task import EpisodeStats, MultiTaskEnv, MultiTaskState, StepResult
 from swat_jax.morphology import StructureBatch
 from swat_jax.networks.policies import Params, action_mask
 from swat_jax.td3 import diagnostics
@@ -166,6 +170,303 @@ def seed_keys(first_seed: int, seeds: int) -> jax.Array:
     return jax.vmap(jax.random.PRNGKey)(jnp.arange(first_seed, first_seed + seeds))
 
 
+Carry = tuple[TrainState, jax.Array]
+"""What collection carries from step to step: the state and [S] bool, the seeds that wait for their round's
+updates."""
+Exploration = Callable[[Params, jax.Array, jax.Array, jax.Array], tuple[jax.Array, jax.Array]]
+"""``explore(actor_params, observation, uniform_phase, rng) -> (action, policy)`` of one seed
+(:func:`make_exploration`)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Collection:
+    """The collection half of an iteration: one step of every copy of every task and seed, stored in the
+    replay (:meth:`step`), and a chunk of them (:meth:`chunk`). The seeds are the state's leading axis [S];
+    only acting and the replay map over them (:func:`swat_jax.axes.over_seeds`)."""
+
+    env: MultiTaskEnv
+    structure: StructureBatch
+    """[K, ...] the tasks' structure as arrays, padded to ``env.max_limbs``."""
+    learner: Learner
+    config: IterationConfig
+    explore: Exploration
+    """One seed's exploration (:func:`make_exploration`), with each copy's noise scale."""
+
+    @classmethod
+    def build(
+        cls, env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig
+    ) -> Collection:
+        """The collection of ``env``'s tasks, whose structure is ``structure``, by ``learner``'s actor."""
+        structure = jax.tree.map(jnp.asarray, structure)
+        explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
+        return cls(env, structure, learner, config, explore)
+
+    @property
+    def waits(self) -> bool:
+        """A seed's updates wait for the end of its lock-step round (:func:`waits_for_rounds`)."""
+        return waits_for_rounds(self.config)
+
+    def random_phase(self, state: TrainState) -> jax.Array:
+        """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
+        [S], per seed: fewer than ``random_steps`` x tasks steps counted (the original's rule)."""
+        if self.config.rounds:
+            return state.counted < self.config.random_steps * self.env.num_bodies
+        return state.steps_per_task < self.config.random_steps
+
+    def step(self, carry: Carry, _: None = None) -> tuple[Carry, Collected]:
+        """One step of every copy of every task and seed, stored in the replay; its rewards, for networks
+        that normalise observations the observations it acted on, which seeds stepped, and with reward
+        scaling every copy's discounted return after the step. A seed that waits for its round's updates
+        (``waiting`` [S]) keeps its environment and stores nothing."""
+        state, waiting = carry
+        stepping = ~waiting
+        seeds = axes.over_seeds(waiting.shape[0])
+        rng, act_key = split_seed_keys(state.rng)
+        action, policy = seeds(self.explore, in_axes=(0, 0, 0 if self.config.rounds else None, 0))(
+            state.learner.actor_params, state.env.observation, self.random_phase(state), act_key
+        )
+        env_state, result = self.env.step(state.env, action)
+        transitions = self.transitions(state.env.observation, action, result, env_state)
+        counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
+        returns, running = self.discounted_returns(state, result, stepping)
+        acted = self.acted(state, policy, action, result) if self.config.diagnostics else None
+        if self.waits:
+            env_state = self.env.where_seeds(stepping, env_state, state.env)
+            counted = jnp.where(stepping, counted, 0)
+            waiting = waiting | result.round_over
+        buffer_axes = axes.seed_axes(state.buffer)
+        inserted = seeds(insert, in_axes=(buffer_axes, 0, 0 if self.waits else None), out_axes=buffer_axes)
+        next_state = state.replace(
+            buffer=inserted(state.buffer, transitions, stepping if self.waits else None),
+            env=env_state,
+            rng=rng,
+            steps_per_task=state.steps_per_task + self.env.copies,
+            counted=state.counted + counted,
+            discounted_return=running,
+        )
+        observed = state.env.observation if self.learner.normalises_observations else None
+        reward = jnp.where(stepping[:, None, None], result.reward, 0.0)
+        return (next_state, waiting), (reward, observed, stepping, returns, acted)
+
+    def transitions(
+        self, observation: jax.Array, action: jax.Array, result: StepResult, env_state: MultiTaskState
+    ) -> Transitions:
+        """The step's transitions [S, K, n, ...] as the replay stores them, from the ``observation`` acted
+        on, the ``action`` taken, the step's ``result`` and the environments' state after it."""
+        next_observation = result.next_observation
+        if self.config.reset_next_state:
+            # The copies that hit the time limit have restarted: env_state holds their new episode's.
+            truncated = result.truncated[..., None, None]
+            next_observation = jnp.where(truncated, env_state.observation, next_observation)
+        return Transitions(
+            observation=observation,
+            action=action,
+            reward=result.reward,
+            next_observation=next_observation,
+            terminated=result.terminated,
+            ended=result.terminated | result.truncated if self.learner.config.episode_ends else None,
+        )
+
+    def discounted_returns(
+        self, state: TrainState, result: StepResult, stepping: jax.Array
+    ) -> tuple[jax.Array | None, jax.Array | None]:
+        """With reward scaling, every copy's discounted return [S, K, n] after the step and the one the next
+        step starts from (:func:`~swat_jax.td3.reward_scaling.discounted_returns`); else None, None."""
+        if not self.learner.config.reward_scaling:
+            return None, None
+        return discounted_returns(
+            state.discounted_return,
+            result.reward,
+            result.terminated | result.truncated,
+            stepping,
+            self.learner.config.discount,
+        )
+
+    def acted(self, state: TrainState, policy: jax.Array, action: jax.Array, result: StepResult) -> Acted:
+        """What the step acted on, for the diagnostics: the observation, pi(s) ``policy`` and the ``action``
+        taken [S, K, n, L(, M)], the episodes it ended and whether the policy acted."""
+        policy_phase = jnp.broadcast_to(~self.random_phase(state), (state.rng.shape[0],))
+        ended = result.terminated | result.truncated
+        return Acted(state.env.observation, policy, action, ended, policy_phase)
+
+    def wait(self, carry: Carry) -> tuple[Carry, Collected]:
+        """No step at all, for a chunk's steps after every seed has come to wait for its round's updates:
+        what :meth:`step` gives a seed that waits, without the physics."""
+        state, waiting = carry
+        seeds, num_tasks = waiting.shape[0], self.env.num_bodies
+        observed = state.env.observation if self.learner.normalises_observations else None
+        reward = jnp.zeros(state.env.round_ended.shape, jnp.float32)
+        waited = state.replace(steps_per_task=state.steps_per_task + self.env.copies)
+        returns = state.discounted_return if self.learner.config.reward_scaling else None
+        idle = None
+        if self.config.diagnostics:
+            action = jnp.zeros((seeds, num_tasks, *self.env.action_shape), jnp.float32)
+            ended = jnp.zeros(reward.shape, bool)
+            idle = Acted(state.env.observation, action, action, ended, jnp.zeros(seeds, bool))
+        return (waited, waiting), (reward, observed, jnp.zeros(seeds, bool), returns, idle)
+
+    def step_or_wait(self, carry: Carry, _: None = None) -> tuple[Carry, Collected]:
+        """:meth:`step`, or :meth:`wait` once every seed waits (the rest of the chunk takes no physics)."""
+        return jax.lax.cond(jnp.all(carry[1]), self.wait, self.step, carry)
+
+    def chunk(self, state: TrainState) -> tuple[Carry, Collected]:
+        """``config.chunk`` steps of every copy from ``state``, its episode statistics cleared first: the
+        state after them, [S] bool the seeds whose round ended (with round updates), and what each step
+        gave, stacked in front of the seed axis ([chunk, S, ...])."""
+        seeds = state.rng.shape[0]
+        state = state.replace(
+            env=state.env.replace(episodes=EpisodeStats.zeros(self.env.num_bodies, (seeds,)))
+        )
+        step = self.step_or_wait if self.waits else self.step
+        return jax.lax.scan(step, (state, jnp.zeros(seeds, bool)), None, length=self.config.chunk)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrainIteration:
+    """The steps of one iteration of every seed (:func:`make_train_iteration`): the chunk's collection,
+    the observations' and returns' statistics, the schedule's updates, the metrics and the diagnostics."""
+
+    collection: Collection
+    slots: int
+    """Update slots of each task's run: with rounds a chunk's counted steps, or with round updates a whole
+    round's; without, the iteration's updates."""
+    motors: jax.Array
+    """[K, 1, L(, M)] the real motors of each task (the structure's motor mask), for the diagnostics."""
+
+    @classmethod
+    def build(
+        cls, env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig
+    ) -> TrainIteration:
+        """The iteration of ``env``'s tasks (structure ``structure``) by ``learner``, sized by ``config``."""
+        collection = Collection.build(env, structure, learner, config)
+        longest = env.longest_episode if collection.waits else config.chunk
+        motor_mask = collection.structure.motor_mask
+        motors = jnp.expand_dims(motor_mask if env.motors_per_limb > 1 else motor_mask[..., 0], 1)
+        return cls(collection, longest * env.copies if config.rounds else config.updates, motors)
+
+    def iteration(self, state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
+        """Collect a chunk, let the learner observe it, run the schedule's updates; the state after them and
+        the metrics of :func:`make_train_iteration`."""
+        counted_before = state.counted
+        (state, round_over), (rewards, observations, stepped, returns, acted) = self.collection.chunk(state)
+        rng, update_key = split_seed_keys(state.rng)
+        learner_state = self.observe(state.learner, observations, returns, stepped)
+        state, learner_state, losses = self.update(
+            state, learner_state, update_key, counted_before, round_over
+        )
+        metrics = self.metrics(state, losses, rewards, stepped)
+        if self.collection.config.diagnostics:
+            episode_values, metrics["diagnostics"] = self.diagnose(
+                state, acted, rewards, stepped, losses["updated"]
+            )
+            state = state.replace(episode_values=episode_values)
+        return state.replace(learner=learner_state, rng=rng), metrics
+
+    def observe(
+        self,
+        learner_state: LearnerState,
+        observations: jax.Array | None,
+        returns: jax.Array | None,
+        stepped: jax.Array,
+    ) -> LearnerState:
+        """``learner_state`` having observed the chunk: with observation normalisation its observations
+        [chunk, S, K, n, L, F], with reward scaling its discounted returns [chunk, S, K, n]; ``stepped``
+        [chunk, S] the seeds that stepped (the steps a seed waited hold nothing new)."""
+        learner, structure = self.collection.learner, self.collection.structure
+        seeds = axes.over_seeds(stepped.shape[1])
+        learner_axes = axes.seed_axes(learner_state)
+        if learner.normalises_observations:
+            # The scan stacks the chunk in front of the seed axis: the seed axis goes first for the seeds' map.
+            mask = structure.limb_mask[None, None, :, None, :] & stepped[:, :, None, None, None]
+            observed = seeds(learner.observe, in_axes=(learner_axes, 0, 0), out_axes=learner_axes)
+            learner_state = observed(
+                learner_state, jnp.moveaxis(observations, 0, 1), jnp.moveaxis(mask, 0, 1)
+            )
+        if learner.config.reward_scaling:
+            observed = seeds(learner.observe_returns, in_axes=(learner_axes, 0, 0), out_axes=learner_axes)
+            learner_state = observed(learner_state, jnp.moveaxis(returns, 0, 1), jnp.moveaxis(stepped, 0, 1))
+        return learner_state
+
+    def update(
+        self,
+        state: TrainState,
+        learner_state: LearnerState,
+        key: jax.Array,
+        counted_before: jax.Array,
+        round_over: jax.Array,
+    ) -> tuple[TrainState, LearnerState, dict[str, jax.Array]]:
+        """The schedule's updates of ``learner_state`` on the replay of ``state``, keys ``key`` [S]: with round
+        updates, each task of a seed whose round ended (``round_over`` [S]) takes the round's share
+        (:func:`round_update_counts`); with rounds alone, the share of the steps counted since
+        ``counted_before`` [S]; else ``config.updates``. The state with its rounds' start, the learner and
+        the updates' losses."""
+        collection = self.collection
+        config, num_tasks = collection.config, collection.env.num_bodies
+        update_phase = make_update_phase(
+            collection.structure,
+            collection.learner,
+            config.schedule,
+            self.slots,
+            state.rng.shape[0],
+            config.rounds,
+            not collection.waits,
+            collection.env.copies,
+        )
+        if collection.waits:
+            counts, round_start = round_update_counts(state.counted, state.round_start, round_over, num_tasks)
+            state = state.replace(round_start=round_start)
+        elif config.rounds:
+            # Each task takes (counted steps summed over tasks) // tasks updates; counting from the run's
+            # start carries the remainder to the next iteration.
+            counts = state.counted // num_tasks - counted_before // num_tasks
+        else:
+            return state, *update_phase(learner_state, state.buffer, key)
+        return state, *update_phase(learner_state, state.buffer, key, counts)
+
+    def metrics(
+        self, state: TrainState, losses: dict[str, jax.Array], rewards: jax.Array, stepped: jax.Array
+    ) -> dict[str, jax.Array]:
+        """The iteration's metrics (:func:`make_train_iteration`) from the updates' ``losses``, the chunk's
+        ``rewards`` [chunk, S, K, n] and ``stepped`` [chunk, S], and the state after it."""
+        env = self.collection.env
+        return {
+            **losses,
+            "reward": jnp.moveaxis(rewards, 0, 1),  # the scan stacks the chunk in front of the seed axis
+            "episodes": state.env.episodes,
+            "counted_steps": state.counted,
+            "stored_steps": jnp.sum(stepped, axis=0, dtype=jnp.int32) * env.num_bodies * env.copies,
+        }
+
+    def diagnose(
+        self, state: TrainState, acted: Acted, rewards: jax.Array, stepped: jax.Array, updated: jax.Array
+    ) -> tuple[EpisodeValues, dict[str, jax.Array]]:
+        """The chunk's diagnostics (:mod:`swat_jax.td3.diagnostics`): its states valued by the critics that
+        acted in it (``state.learner``'s), in one batch, every copy's episode carried through it, and the
+        updates [S, K] that took a batch of each task (``updated`` [S, updates], the update phase's)."""
+        learner, structure = self.collection.learner, self.collection.structure
+        seeds, num_tasks = state.rng.shape[0], self.collection.env.num_bodies
+        divisor = (
+            state.learner.returns.divisor() if learner.config.reward_scaling else jnp.ones((seeds, num_tasks))
+        )
+        estimated = axes.over_seeds(seeds)(diagnostics.make_value_estimate(learner.body_values, structure))
+        q1, q2 = diagnostics.chunk_estimates(estimated, state.learner.critic_params, divisor, acted)
+        episode_values, sums = diagnostics.iteration_sums(
+            state.episode_values, acted, q1, q2, rewards, stepped, self.motors, learner.config.discount
+        )
+        per_task = updated.reshape(
+            seeds, num_tasks if self.collection.config.schedule == "original" else 1, -1
+        )
+        return episode_values, {
+            **sums,
+            "updates": jnp.broadcast_to(jnp.sum(per_task, axis=-1), (seeds, num_tasks)),
+        }
+
+
+def split_seed_keys(rng: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Each seed's key [S] split in two: the seed's next key and one to use now, [S] each."""
+    return axes.over_seeds(rng.shape[0])(lambda key: tuple(jax.random.split(key)))(rng)
+
+
 def make_train_iteration(
     env: MultiTaskEnv, structure: StructureBatch, learner: Learner, config: IterationConfig
 ) -> Callable[[TrainState], tuple[TrainState, dict[str, jax.Array]]]:
@@ -191,179 +492,7 @@ def make_train_iteration(
     and with :attr:`IterationConfig.diagnostics` ``diagnostics``, their sums per task [K]
     (:func:`swat_jax.td3.diagnostics.summed`, and ``updates``: the updates that took a batch of the task).
     """
-    structure = jax.tree.map(jnp.asarray, structure)
-    num_tasks = structure.limb_mask.shape[0]
-    explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
-    motors = jnp.expand_dims(
-        structure.motor_mask if env.motors_per_limb > 1 else structure.motor_mask[..., 0], 1
-    )
-    waits = waits_for_rounds(config)
-    # Update slots of each task's run: a chunk's counted steps, or with round_updates a whole round's.
-    slots = (env.longest_episode if waits else config.chunk) * env.copies if config.rounds else config.updates
-
-    def random_phase(state: TrainState) -> jax.Array:
-        """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
-        [S], per seed: fewer than ``random_steps`` x tasks steps counted (the original's rule)."""
-        if config.rounds:
-            return state.counted < config.random_steps * num_tasks
-        return state.steps_per_task < config.random_steps
-
-    def iteration(state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
-        seeds = state.rng.shape[0]
-        over_seeds = axes.over_seeds(seeds)
-        split = over_seeds(lambda key: tuple(jax.random.split(key)))
-        buffer_axes = axes.seed_axes(state.buffer)
-        inserted = over_seeds(insert, in_axes=(buffer_axes, 0, 0 if waits else None), out_axes=buffer_axes)
-        explored = over_seeds(explore, in_axes=(0, 0, 0 if config.rounds else None, 0))
-        update_phase = make_update_phase(
-            structure, learner, config.schedule, slots, seeds, config.rounds, not waits, env.copies
-        )
-        learner_axes = axes.seed_axes(state.learner)
-        observed = over_seeds(
-            lambda learner_state, observations, mask: learner.observe(learner_state, observations, mask),
-            in_axes=(learner_axes, 0, 0),
-            out_axes=learner_axes,
-        )
-        observed_returns = over_seeds(
-            learner.observe_returns, in_axes=(learner_axes, 0, 0), out_axes=learner_axes
-        )
-        scales_rewards = learner.config.reward_scaling
-        estimated = over_seeds(diagnostics.make_value_estimate(learner.body_values, structure))
-
-        def diagnose(
-            state: TrainState, acted: Acted, rewards: jax.Array, stepped: jax.Array
-        ) -> tuple[EpisodeValues, dict[str, jax.Array]]:
-            """The chunk's diagnostics (:mod:`swat_jax.td3.diagnostics`): its states valued by the critics
-            that acted in it, in one batch, and every copy's episode carried through it."""
-            divisor = state.learner.returns.divisor() if scales_rewards else jnp.ones((seeds, num_tasks))
-            q1, q2 = diagnostics.chunk_estimates(estimated, state.learner.critic_params, divisor, acted)
-            return diagnostics.iteration_sums(
-                state.episode_values, acted, q1, q2, rewards, stepped, motors, learner.config.discount
-            )
-
-        def collect(carry: tuple[TrainState, jax.Array], _) -> tuple[tuple[TrainState, jax.Array], Collected]:
-            """One step of every copy of every task and seed, stored in the replay; its rewards, for networks
-            that normalise observations the observations it acted on, which seeds stepped, and with reward
-            scaling every copy's discounted return after the step. A seed that waits for its round's updates
-            (``waiting`` [S]) keeps its environment and stores nothing."""
-            state, waiting = carry
-            stepping = ~waiting
-            rng, act_key = split(state.rng)
-            action, policy = explored(
-                state.learner.actor_params, state.env.observation, random_phase(state), act_key
-            )
-            env_state, result = env.step(state.env, action)
-            next_observation = result.next_observation
-            if config.reset_next_state:
-                # The copies that hit the time limit have restarted: env_state holds their new episode's.
-                truncated = result.truncated[..., None, None]
-                next_observation = jnp.where(truncated, env_state.observation, next_observation)
-            transitions = Transitions(
-                observation=state.env.observation,
-                action=action,
-                reward=result.reward,
-                next_observation=next_observation,
-                terminated=result.terminated,
-                ended=result.terminated | result.truncated if learner.config.episode_ends else None,
-            )
-            counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
-            returns, running = None, None
-            if scales_rewards:
-                returns, running = discounted_returns(
-                    state.discounted_return,
-                    result.reward,
-                    result.terminated | result.truncated,
-                    stepping,
-                    learner.config.discount,
-                )
-            acted = None
-            if config.diagnostics:
-                policy_phase = jnp.broadcast_to(~random_phase(state), (seeds,))
-                ended = result.terminated | result.truncated
-                acted = Acted(state.env.observation, policy, action, ended, policy_phase)
-            if waits:
-                env_state = env.where_seeds(stepping, env_state, state.env)
-                counted = jnp.where(stepping, counted, 0)
-                waiting = waiting | result.round_over
-            next_state = state.replace(
-                buffer=inserted(state.buffer, transitions, stepping if waits else None),
-                env=env_state,
-                rng=rng,
-                steps_per_task=state.steps_per_task + env.copies,
-                counted=state.counted + counted,
-                discounted_return=running,
-            )
-            observed_now = state.env.observation if learner.normalises_observations else None
-            reward = jnp.where(stepping[:, None, None], result.reward, 0.0)
-            return (next_state, waiting), (reward, observed_now, stepping, returns, acted)
-
-        def collect_or_wait(
-            carry: tuple[TrainState, jax.Array], _
-        ) -> tuple[tuple[TrainState, jax.Array], Collected]:
-            """:func:`collect`, or no step at all once every seed waits (the rest of the chunk takes no physics)."""
-
-            def wait(carry: tuple[TrainState, jax.Array]):
-                state, waiting = carry
-                observed_now = state.env.observation if learner.normalises_observations else None
-                reward = jnp.zeros(state.env.round_ended.shape, jnp.float32)
-                waited = state.replace(steps_per_task=state.steps_per_task + env.copies)
-                returns = state.discounted_return if scales_rewards else None
-                idle = None
-                if config.diagnostics:
-                    action = jnp.zeros((seeds, num_tasks, *env.action_shape), jnp.float32)
-                    ended = jnp.zeros(reward.shape, bool)
-                    idle = Acted(state.env.observation, action, action, ended, jnp.zeros(seeds, bool))
-                return (waited, waiting), (reward, observed_now, jnp.zeros(seeds, bool), returns, idle)
-
-            return jax.lax.cond(jnp.all(carry[1]), wait, lambda carry: collect(carry, None), carry)
-
-        state = state.replace(env=state.env.replace(episodes=EpisodeStats.zeros(env.num_bodies, (seeds,))))
-        counted_before = state.counted
-        (state, round_over), (rewards, observations, stepped, returns, acted) = jax.lax.scan(
-            collect_or_wait if waits else collect, (state, jnp.zeros(seeds, bool)), None, length=config.chunk
-        )
-        rng, update_key = split(state.rng)
-        learner_state = state.learner
-        if learner.normalises_observations:
-            # The scan stacks the chunk in front of the seed axis: observations [chunk, S, K, n, L, F]; the
-            # steps a seed waited hold no new observation.
-            mask = structure.limb_mask[None, None, :, None, :] & stepped[:, :, None, None, None]
-            learner_state = observed(
-                learner_state, jnp.moveaxis(observations, 0, 1), jnp.moveaxis(mask, 0, 1)
-            )
-        if scales_rewards:
-            learner_state = observed_returns(
-                learner_state, jnp.moveaxis(returns, 0, 1), jnp.moveaxis(stepped, 0, 1)
-            )
-        if waits:
-            counts, round_start = round_update_counts(state.counted, state.round_start, round_over, num_tasks)
-            state = state.replace(round_start=round_start)
-            learner_state, metrics = update_phase(learner_state, state.buffer, update_key, counts)
-        elif config.rounds:
-            # Each task takes (counted steps summed over tasks) // tasks updates; counting from the run's
-            # start carries the remainder to the next iteration.
-            counts = state.counted // num_tasks - counted_before // num_tasks
-            learner_state, metrics = update_phase(learner_state, state.buffer, update_key, counts)
-        else:
-            learner_state, metrics = update_phase(learner_state, state.buffer, update_key)
-        metrics = {
-            **metrics,
-            "reward": jnp.moveaxis(rewards, 0, 1),  # the scan stacks the chunk in front of the seed axis
-            "episodes": state.env.episodes,
-            "counted_steps": state.counted,
-            "stored_steps": jnp.sum(stepped, axis=0, dtype=jnp.int32) * num_tasks * env.copies,
-        }
-        if config.diagnostics:
-            episode_values, sums = diagnose(state, acted, rewards, stepped)
-            state = state.replace(episode_values=episode_values)
-            updated = metrics["updated"].reshape(seeds, num_tasks if config.schedule == "original" else 1, -1)
-            metrics["diagnostics"] = {
-                **sums,
-                "updates": jnp.broadcast_to(jnp.sum(updated, axis=-1), (seeds, num_tasks)),
-            }
-        return state.replace(learner=learner_state, rng=rng), metrics
-
-    return iteration
+    return TrainIteration.build(env, structure, learner, config).iteration
 
 
 def round_update_counts(
