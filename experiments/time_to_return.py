@@ -101,6 +101,8 @@ class Candidate:
     """Each body's rewards divided by the spread of its discounted returns (``--td3.reward-scaling``)."""
     action_penalty: float | None = None
     """Weight of the actor's penalty on its pre-tanh outputs squared (``--td3.action-penalty``)."""
+    action_penalty_from: float | None = None
+    """|pre-tanh output| from which the penalty counts (``--td3.action-penalty-from``)."""
 
     def config(self, scaled: TrainConfig) -> TrainConfig:
         """``scaled`` (the preset at the scale's settings) with this candidate's changes."""
@@ -118,6 +120,7 @@ class Candidate:
                 target_pessimism=self.pessimism,
                 reward_scaling=self.reward_scaling,
                 action_penalty=self.action_penalty,
+                action_penalty_from=self.action_penalty_from,
             ),
         )
         if self.c51:
@@ -194,12 +197,14 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
     "fast-ap0.01-2dev": Candidate(action_penalty=0.01),
     "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
+    "fast-ap0.003-2dev": Candidate(action_penalty=0.003),
+    "fast-ap0.1-from2-2dev": Candidate(action_penalty=0.1, action_penalty_from=2.0),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
 rounds, stopping at the original's counted budget); every other is its preset at the scale's sizes and hyperparameters
 with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
 per body, chunk K, U updates per iteration and batch B per body (the recipe search, experiments/LAB.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling, ``-apW`` with the actor's action penalty W (``paper-flax``: the
+``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling, ``-apW`` with the actor's action penalty W, ``-fromU`` counting it from |u| = U (``paper-flax``: the
 paper preset with Flax's);
 ``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}

@@ -248,29 +248,37 @@ def limb_mean_action(observation, action):
 REWARDS = (*REWARDS, limb_mean_action)
 
 
-def penalised(action_penalty: float) -> Learner:
+def penalised(action_penalty: float, action_penalty_from: float = 0.0) -> Learner:
     base = learner()
-    return Learner(base.actor, base.critic, dataclasses.replace(base.config, action_penalty=action_penalty))
+    td3 = dataclasses.replace(
+        base.config, action_penalty=action_penalty, action_penalty_from=action_penalty_from
+    )
+    return Learner(base.actor, base.critic, td3)
 
 
-def test_the_action_penalty_adds_the_mean_square_of_the_motors_pre_tanh_outputs():
-    """Actor loss with penalty w = the loss without + w x the mean over the batch and the real motors (not the
-    torso, not padding) of the pre-tanh outputs squared; without one, TD3's -mean Q1(s, pi(s))."""
-    plain, weighted = penalised(0.0), penalised(0.25)
+@pytest.mark.parametrize("start", [0.0, 0.5])
+def test_the_action_penalty_adds_the_mean_square_of_the_motors_pre_tanh_outputs(start):
+    """Actor loss with penalty w from s = the loss without + w x the mean over the batch and the real motors
+    (not the torso, not padding) of max(|u| - s, 0)^2, u the pre-tanh outputs; without one, TD3's
+    -mean Q1(s, pi(s))."""
+    plain, weighted = penalised(0.0), penalised(0.25, start)
     state = plain.init(jax.random.PRNGKey(0))
     batch = random_batch(jax.random.PRNGKey(3), reward=0, terminated=True)
     loss = plain._actor_loss(state.actor_params, state.critic_params, batch, STRUCTURE)
     with_penalty = weighted._actor_loss(state.actor_params, state.critic_params, batch, STRUCTURE)
-    outputs = jax.vmap(plain.actor.apply, in_axes=(None, 0, 0, None))(
-        state.actor_params, batch.observation, STRUCTURE, False
+    outputs = np.asarray(
+        jax.vmap(plain.actor.apply, in_axes=(None, 0, 0, None))(
+            state.actor_params, batch.observation, STRUCTURE, False
+        )
     )
     motors = np.asarray(STRUCTURE.motor_mask[..., 0])
     assert motors.sum(-1).tolist() == [2, 3], "hopper_3 and cheetah_4_front: every limb but the torso"
-    squares = np.where(motors[:, None, :], np.asarray(outputs) ** 2, 0.0).sum((1, 2)) / (
-        motors.sum(-1) * BATCH
-    )
+    real = np.broadcast_to(motors[:, None, :], outputs.shape)
+    assert 0.1 < np.mean(np.abs(outputs[real]) > 0.5) < 0.9, "outputs on both sides of 0.5"
+    excess = np.maximum(np.abs(outputs) - start, 0.0)
+    squares = np.where(real, excess**2, 0.0).sum((1, 2)) / (motors.sum(-1) * BATCH)
     assert float(with_penalty - loss) == pytest.approx(0.25 * squares.mean(), rel=1e-5)
-    actions = np.tanh(np.asarray(outputs))
+    actions = np.tanh(outputs)
     q1, _ = jax.vmap(plain._q_values, in_axes=(None, 0, 0, 0))(
         state.critic_params, batch.observation, jnp.asarray(actions), STRUCTURE
     )

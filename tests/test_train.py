@@ -460,9 +460,10 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
         TrainConfig(iteration=dataclasses.replace(PRESETS["paper"].iteration, exploration_noise_max=-0.1))
     with pytest.raises(ConfigError, match=r"--td3\.target-pessimism must be in \[0, 1\].*got 1.5"):
         TrainConfig(td3=dataclasses.replace(PRESETS["paper"].td3, target_pessimism=1.5))
-    for penalty in (-0.01, float("nan")):
-        with pytest.raises(ConfigError, match=r"--td3\.action-penalty must be 0 .* or positive; got"):
-            TrainConfig(td3=dataclasses.replace(PRESETS["paper"].td3, action_penalty=penalty))
+    for penalty, start in ((-0.01, 0.0), (float("nan"), 0.0), (0.1, -1.0)):
+        with pytest.raises(ConfigError, match=r"--td3\.action-penalty .* must be 0 or positive; got"):
+            td3 = dataclasses.replace(PRESETS["paper"].td3, action_penalty=penalty, action_penalty_from=start)
+            TrainConfig(td3=td3)
     fast = PRESETS["fast"]
     with pytest.raises(ConfigError, match=r"--td3\.atoms needs .* got 0.5 .* add --td3\.target-pessimism 1"):
         dataclasses.replace(fast, td3=dataclasses.replace(fast.td3, atoms=51))

@@ -327,9 +327,10 @@ class TrainConfig:
                 f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
                 f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
             )
-        if not self.td3.action_penalty >= 0.0:
+        if not (self.td3.action_penalty >= 0.0 and self.td3.action_penalty_from >= 0.0):
             raise ConfigError(
-                f"--td3.action-penalty must be 0 (TD3's actor loss) or positive; got {self.td3.action_penalty}"
+                "--td3.action-penalty (0: TD3's actor loss) and --td3.action-penalty-from must be 0 or "
+                f"positive; got {self.td3.action_penalty} and {self.td3.action_penalty_from}"
             )
         if not 0.0 <= self.td3.target_pessimism <= 1.0:
             raise ConfigError(

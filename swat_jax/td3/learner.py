@@ -84,11 +84,15 @@ class TD3Config:
     """Rewards summed into each TD target before it bootstraps: 1 is TD3's one-step target; N > 1 the N-step return of a copy's consecutive steps in the replay, cut at the episode's end, bootstrapping with discount^N (needs the all_tasks schedule; the fast preset's 3 was measured, docs/training.md)."""
 
     action_penalty: float = 0.0
-    """Weight of a penalty on the actor's pre-tanh outputs: its loss adds action_penalty x the mean of their
-    squares over the body's real motors (the action regulariser of Andrychowicz et al. 2017, on tanh's input
-    instead of its output, so that its gradient does not vanish where tanh is flat). It keeps the policy off
-    its action bounds, where the critic's gradient vanishes and clipping removes half of the exploration
-    noise: the ostrich's dive plateau (docs/training.md). 0: TD3's loss."""
+    """Weight of a penalty on the actor's pre-tanh outputs u: its loss adds action_penalty x the mean over the
+    body's real motors of max(|u| - action_penalty_from, 0)^2 (with action_penalty_from 0, u^2: the action
+    regulariser of Andrychowicz et al. 2017, on tanh's input instead of its output, so that its gradient
+    does not vanish where tanh is flat). It keeps the policy off its action bounds, where the critic's
+    gradient vanishes and clipping removes half of the exploration noise: the ostrich's dive plateau
+    (docs/training.md). 0: TD3's loss."""
+    action_penalty_from: float = 0.0
+    """|u| up to which the action penalty is 0: 0 penalises every output; 2 only the ones whose action is
+    beyond tanh(2) = 0.96 in magnitude, near the bounds."""
 
     reward_scaling: bool = False
     """Divide each task's rewards by the spread of its discounted returns so far (FastTD3's per-task reward normaliser; :mod:`swat_jax.td3.reward_scaling`), so that no body's returns outweigh the others' in the all-task loss (needs the all_tasks schedule)."""
@@ -381,7 +385,8 @@ class Learner:
             outputs = self.actor.apply(actor_params, batch.observation, structure, squash=False)
             q1, _ = self._q_values(critic_params, batch.observation, jnp.tanh(outputs), structure)
             loss = -_masked_mean(q1, self._value_mask(structure.limb_mask))
-            squares = jnp.square(outputs).reshape(outputs.shape[0], -1)
+            excess = jnp.maximum(jnp.abs(outputs) - self.config.action_penalty_from, 0.0)
+            squares = jnp.square(excess).reshape(outputs.shape[0], -1)
             return loss + self.config.action_penalty * _masked_mean(
                 squares, motor_slots(structure).reshape(-1)
             )
