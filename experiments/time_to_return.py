@@ -138,75 +138,26 @@ def _given(**values: Any) -> dict[str, Any]:
     return {name: value for name, value in values.items() if value is not None}
 
 
-def unscaled(**changes: Any) -> Candidate:
-    """The fast preset of sessions 28-32 with ``changes``: TD targets from the twin critics' minimum (unless
-    ``pessimism`` is given) and rewards unscaled, the candidates measured before reward scaling."""
-    return Candidate(**{"pessimism": 1.0, "reward_scaling": False, **changes})
-
-
-def one_step(**changes: Any) -> Candidate:
-    """The fast preset before n-step returns with ``changes``: :func:`unscaled`, with 1-step returns, the
-    candidates measured before session 28."""
-    return unscaled(**{"n_step": 1, **changes})
-
-
-def recipe(copies: int, chunk: int, updates: int, batch: int, **more: Any) -> Candidate:
-    """The fast preset before n-step returns (:func:`one_step`) with ``copies`` per body, ``chunk`` steps per
-    copy, ``updates`` per iteration and ``batch`` per body, and ``more`` changes."""
-    return one_step(copies=copies, chunk=chunk, updates=updates, batch=batch, **more)
-
-
 CANDIDATES: dict[str, Candidate] = {
     "paper": Candidate("paper"),
     "paper-2dev": Candidate("paper"),
     "paper-flax-2dev": Candidate("paper", initialisation="flax"),
-    "paper-k250-2dev": Candidate("paper", chunk=250),
     "fast": Candidate(),
     "fast-2dev": Candidate(),
-    "fast-c16-k32-u64-b256": recipe(16, 32, 64, 256),
-    "fast-c8-k16-u64-b200": recipe(8, 16, 64, 200),
-    "fast-c4-k16-u64-b100": recipe(4, 16, 64, 100),
-    "fast-c4-k16-u64-b100-2dev": recipe(4, 16, 64, 100),
-    "fast-c4-k16-u128-b100-2dev": recipe(4, 16, 128, 100),
-    "fast-c4-k16-u64-b100-lr3e-3-2dev": recipe(4, 16, 64, 100, learning_rate=3e-3),
-    "fast-c4-k16-u64-b100-lr2e-3-2dev": recipe(4, 16, 64, 100, learning_rate=2e-3),
-    "fast-c4-k16-u64-b100-lr5e-3-2dev": recipe(4, 16, 64, 100, learning_rate=5e-3),
-    "fast-c4-k16-u32-b100-lr3e-3-2dev": recipe(4, 16, 32, 100, learning_rate=3e-3),
-    "fast-c4-k16-u64-b100-lr3e-3-init-2dev": recipe(
-        4, 16, 64, 100, learning_rate=3e-3, initialisation="original"
-    ),
-    "fast-init-2dev": one_step(initialisation="original"),
-    "fast-lr2e-3-2dev": one_step(learning_rate=2e-3),
-    "fast-norm-2dev": one_step(normalise=True),
-    "fast-c4-k16-u256-b25-2dev": recipe(4, 16, 256, 25),
-    "fast-c4-k16-u512-b12-2dev": recipe(4, 16, 512, 12),
-    "fast-c4-k16-u64-b100-n0.05-0.4-2dev": recipe(4, 16, 64, 100, noise=(0.05, 0.4)),
-    "fast-n0.05-0.4-2dev": one_step(noise=(0.05, 0.4)),
-    "fast-c4-k16-u64-b100-c51-2dev": recipe(4, 16, 64, 100, c51=True),
-    "fast-c51-2dev": one_step(c51=True),
-    "fast-nstep1-2dev": unscaled(n_step=1),
-    "fast-nstep2-2dev": unscaled(n_step=2),
-    "fast-nstep3-2dev": unscaled(n_step=3),
-    "fast-nstep5-2dev": unscaled(n_step=5),
-    "fast-u128-2dev": unscaled(updates=128),
-    "fast-u128-nstep3-2dev": unscaled(updates=128, n_step=3),
-    "fast-mean-2dev": unscaled(pessimism=0.0),
-    "fast-p0.5-2dev": unscaled(pessimism=0.5),
-    "fast-rscale-2dev": Candidate(reward_scaling=True, pessimism=1.0),
-    "fast-rscale-mean-2dev": Candidate(reward_scaling=True, pessimism=0.0),
     "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
     "fast-ap0.01-2dev": Candidate(action_penalty=0.01),
     "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
     "fast-ap0.003-2dev": Candidate(action_penalty=0.003),
     "fast-ap0.1-from2-2dev": Candidate(action_penalty=0.1, action_penalty_from=2.0),
 }
-"""swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step
-rounds, stopping at the original's counted budget); every other is its preset at the scale's sizes and hyperparameters
-with the candidate's changes, trained for the original's budget. ``fast-cC-kK-uU-bB``: the fast preset with C copies
-per body, chunk K, U updates per iteration and batch B per body (the recipe search, experiments/LAB.md),
-``-lrX`` with learning rate X, ``-nA-B`` with each copy's exploration noise std spread from A to B, ``-c51`` with a distributional critic, ``-kK`` with chunk K, ``-init`` with the original code's initial weights, ``-norm`` with observation normalisation, ``-uU`` with U updates per iteration, ``-nstepN`` with N-step returns, ``-mean`` with TD targets from the twin critics' mean, ``-pX`` at target pessimism X, ``-rscale`` with per-body reward scaling, ``-apW`` with the actor's action penalty W, ``-fromU`` counting it from |u| = U (``paper-flax``: the
-paper preset with Flax's);
-``-Ndev``: the same with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`)."""
+"""swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step rounds,
+stopping at the original's counted budget); every other is its preset at the scale's sizes and
+hyperparameters with the candidate's changes, trained for the original's budget. ``paper-flax``: the paper
+preset with Flax's initial weights; ``-rscale`` with per-body reward scaling, ``-pX`` at target pessimism
+X, ``-apW`` with the actor's action penalty W, ``-fromU`` counting it from |u| = U; ``-Ndev``: the same
+with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`). ``fast`` and ``fast-2dev`` are the preset of
+the day. The candidates of the searches before are retired: each one's config is in the results folder that
+reports it, ``runs/<set>-<candidate>/config.json`` (experiments/LAB.md, "Retired candidates")."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over
 them: XLA runs each device's share on its own thread; 1.11x on the fast preset's iteration with 2,
@@ -558,7 +509,7 @@ class TimeToReturnCommand:
     scale: ScaleName = "small"
     """against_original's scale: the sizes, hyperparameters and budget of the original's runs."""
     candidates: tuple[str, ...] = tuple(CANDIDATES)
-    """swat_jax configurations to train (names of CANDIDATES: paper, fast, fast-c4-k16-u64-b100, ...; default all)."""
+    """swat_jax configurations to train (names of CANDIDATES: paper, fast, fast-2dev, ...; default all)."""
     seeds: int | None = None
     """Seeds of every configuration; None: the scale's."""
     original_seeds: int | None = None

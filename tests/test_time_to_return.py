@@ -5,6 +5,7 @@ import csv
 import dataclasses
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,10 +14,11 @@ from test_against_original import write_original_seed
 from experiments import paper
 from experiments import time_to_return as ttr
 from experiments.original import curves, returns, runs
-from swat_jax.runs.config import PRESETS
+from swat_jax.runs.config import PRESETS, load_config
 from swat_jax.train import INTERRUPTED_STATUS
 
 MICRO = runs.SETTINGS["micro"]
+RESULTS = Path(__file__).parents[1] / "experiments" / "results"
 
 
 def test_the_crossing_is_the_first_point_whose_trailing_mean_reaches_r():
@@ -108,13 +110,13 @@ def test_the_stranded_table_counts_seeds_below_every_seed_of_the_original():
     assert "| fast | 2 of 4 | 2 of 4 |" in lines and "about 1 in 9" in lines[0], "against 8 seeds"
 
 
-def test_every_candidate_is_the_configuration_it_was_measured_with(tmp_path):
-    """Each candidate builds a valid run whatever the preset is now, and one measured before n-step returns and
-    reward scaling keeps what it ran with (a C51 candidate would not build at the preset's pessimism 0.5)."""
+def test_every_candidate_builds_a_valid_run_whatever_the_preset_is_now(tmp_path):
+    """Each candidate builds a valid run at the small scale (a candidate measured with an earlier preset is
+    retired, its config kept in the results folder that reports it)."""
     settings = runs.SETTINGS["small"]
-    configs = {name: ttr.candidate_run(tmp_path, settings, "walker", name).config for name in ttr.CANDIDATES}
-    before = configs["fast-c51-2dev"].td3
-    assert (before.n_step, before.target_pessimism, before.reward_scaling) == (1, 1.0, False)
+    for name in ttr.CANDIDATES:
+        config = ttr.candidate_run(tmp_path, settings, "walker", name).config
+        assert (config.env, Path(config.run_dir).name) == ("walker", f"walker-{name}")
 
 
 def test_the_fast_candidate_at_the_small_scale_is_the_fast_preset_a_user_runs(tmp_path):
@@ -194,7 +196,7 @@ def test_micro_scale_trains_reports_and_resumes(tmp_path, capsys, monkeypatch):
 
 
 def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):
-    run = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100-2dev")
+    run = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-2dev")
     for command in (run.command(), run.resume_command()):
         assert command[0] == "env" and command[1].endswith("--xla_force_host_platform_device_count=2")
         assert command[2:5] == [sys.executable, "-m", "swat_jax.train"]
@@ -202,7 +204,7 @@ def test_a_two_device_candidate_runs_with_the_cpu_as_two_devices(tmp_path):
     assert paper.shown(run.command()).startswith("env 'XLA_FLAGS=") and " python -m swat_jax.train " in (
         paper.shown(run.command())
     ), "printed as a line to copy"
-    plain = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast-c4-k16-u64-b100")
+    plain = ttr.candidate_run(tmp_path, MICRO, "hopper", "fast")
     assert dataclasses.replace(plain.config, run_dir="") == dataclasses.replace(run.config, run_dir="")
     assert "device_count" not in " ".join(plain.command())
 
@@ -221,10 +223,14 @@ def test_every_candidate_is_its_preset_at_the_scale_with_its_changes(tmp_path):
         config("paper-flax-2dev"), network=config("paper-2dev").network, run_dir=""
     ) == (dataclasses.replace(config("paper-2dev"), run_dir=""))
     assert config("paper-2dev").td3.batch_size == small.batch_size == 100
-    fast, recipe = config("fast-2dev"), config("fast-c4-k16-u256-b25-2dev")
+    fast = config("fast-2dev")
     assert fast.td3.batch_size == 25 and fast.iteration.updates == 256
-    shape = dataclasses.replace(fast, run_dir="", td3=recipe.td3)
-    assert shape == dataclasses.replace(recipe, run_dir=""), "the preset's shape is that recipe's"
+    recipe = load_config(RESULTS / "fast_recipe/runs/walker-fast-c4-k16-u256-b25-2dev/config.json")
+    longer = ttr.candidate_run(tmp_path, ttr.with_horizon(small, "walker", 1.5), "walker", "fast-2dev").config
+    shape = dataclasses.replace(
+        longer, run_dir="", td3=recipe.td3, iteration=dataclasses.replace(longer.iteration, diagnostics=False)
+    )
+    assert shape == dataclasses.replace(recipe, run_dir=""), "the preset's shape is the recipe's, as it ran"
     last = dataclasses.replace(config("fast-rscale-p0.5-2dev"), run_dir="")
     assert last == dataclasses.replace(fast, run_dir=""), "and its TD3 settings the last search's"
 
