@@ -4,6 +4,7 @@ benchmark at micro scale against original runs written as the original's tools l
 import csv
 import dataclasses
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from test_against_original import write_original_seed
 from experiments import paper
 from experiments import time_to_return as ttr
 from experiments.original import curves, returns, runs
+from swat_jax.morphology import SETS, get_set
 from swat_jax.runs.config import PRESETS, load_config
 from swat_jax.train import INTERRUPTED_STATUS
 
@@ -255,3 +257,35 @@ def test_the_originals_budget_is_given_with_steps_and_a_run_of_another_is_refuse
     assert "R = 40.5" in (tmp_path / "out" / "time_to_return.md").read_text(), "the last 20% of 1,200 steps"
     assert ttr.main([*argv, "--steps", "0"]) == 2
     assert "--steps must be 1 or more, got 0" in capsys.readouterr().err
+
+
+def reported_runs(report: Path) -> list[tuple[str, str]]:
+    """(set, candidate) of every swat_jax row of a committed time-to-return report, in order."""
+    sets = {get_set(name).description or name: name for name in SETS}
+    rows, environment_set = [], None
+    for line in report.read_text().splitlines():
+        if section := re.match(r"## (.*), [\d,]+ steps$", line):
+            environment_set = sets[section.group(1)]
+        elif (row := re.match(r"\| ([a-z][^ |]*) \| \d+ \|", line)) and environment_set:
+            rows.append((environment_set, row.group(1)))
+    return list(dict.fromkeys(rows))
+
+
+REPORTS = sorted(
+    report
+    for report in RESULTS.glob("*/*.md")
+    if report.read_text().startswith("# Time to the original's final return")
+)
+
+
+@pytest.mark.parametrize("report", REPORTS, ids=lambda report: f"{report.parent.name}/{report.name}")
+def test_every_run_a_committed_report_shows_has_its_config(report):
+    """Any figure can be rerun: each swat_jax row of a time-to-return report has its run's config.json,
+    ``runs/<set>-<candidate>/`` in the report's folder, retired candidates' included."""
+    rows = reported_runs(report)
+    assert rows, "the report has swat_jax rows"
+    for environment_set, name in rows:
+        path = report.parent / "runs" / f"{environment_set}-{name}" / "config.json"
+        assert path.is_file(), f"{path}: the config of a reported run is missing"
+        config = load_config(path)
+        assert config.env == environment_set, f"{path}: a run of {config.env}"
