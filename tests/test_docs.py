@@ -1,4 +1,5 @@
-"""The Python blocks of docs/python.md run as written (the training block at a tiny size)."""
+"""The Python blocks of docs/python.md run as written (the training block at a tiny size), and the README
+keeps to its length."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-PAGE = Path(__file__).resolve().parents[1] / "docs" / "python.md"
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "python.md"
 SNIPPET = re.compile(r"<!-- snippet: (\w+) -->\n```python\n(.*?)```", re.DOTALL)
 
 TINY_TRAINING = {
@@ -72,3 +74,10 @@ def test_every_block_runs_in_order(tmp_path, monkeypatch, hopper_folder, capsys)
     ):
         assert (tmp_path / written).stat().st_size > 0, written
     assert "('torso', 'thigh', 'foot') (-1, 0, 1)" in capsys.readouterr().out
+
+
+def test_the_readme_is_at_most_100_lines():
+    """The README keeps to one job (what swat_jax is, install, a first run, where to read more); the rest
+    lives in docs/."""
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 100, f"README.md has {len(lines)} lines; move the longest section into docs/"
