@@ -144,7 +144,7 @@ CANDIDATES: dict[str, Candidate] = {
     "paper-flax-2dev": Candidate("paper", initialisation="flax"),
     "fast": Candidate(),
     "fast-2dev": Candidate(),
-    "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5),
+    "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5, action_penalty=0.0),
     "fast-ap0.01-2dev": Candidate(action_penalty=0.01),
     "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
     "fast-ap0.003-2dev": Candidate(action_penalty=0.003),

@@ -578,6 +578,16 @@ def test_a_config_json_of_the_flat_layout_still_loads(tmp_path):
     assert (config.envs.copies, config.envs.physics, config.envs.torso_relative_x) == (3, "c", True)
 
 
+def test_a_fast_run_written_before_the_action_penalty_resumes_without_it(tmp_path):
+    """A config.json of the fast preset from before --td3.action-penalty has no such field: the run goes on
+    with TD3's actor loss, as it trained, not with the preset's penalty of today."""
+    fields = json.loads(dataclasses.replace(PRESETS["fast"], env="hopper").to_json())
+    assert fields["td3"].pop("action_penalty") > 0 and fields["td3"].pop("action_penalty_from") == 0
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(fields))
+    assert load_config(path).td3.action_penalty == 0.0
+
+
 def test_cli_reports_an_existing_run_directory(trained_run, capsys):
     assert main(["--env", "hopper", "--run-dir", str(trained_run)]) == 2
     assert "exists; continue it with --resume" in capsys.readouterr().err
