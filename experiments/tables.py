@@ -1,4 +1,4 @@
-"""The result tables of README.md, BENCHMARKS.md and docs/training.md, written from the committed results in
+"""The result tables of README.md, BENCHMARKS.md, docs/training.md and docs/fidelity.md, written from the committed results in
 experiments/results/ by the report code that wrote those results.
 
     python -m experiments.tables            # rewrite the generated tables in place
@@ -301,6 +301,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "README.md": ("parity", "time-to-return"),
     "BENCHMARKS.md": ("summary", "time-to-return-runs", "parity"),
     "training.md": ("time-to-return",),
+    "fidelity.md": ("parity",),
 }
 """The tables each of the repository's files must hold."""
 
@@ -357,13 +358,18 @@ def differences(lines: Sequence[str], path: Path) -> list[str]:
 
 @dataclasses.dataclass(frozen=True)
 class TablesCommand:
-    """Write the result tables of README.md, BENCHMARKS.md and docs/training.md from the committed results in
+    """Write the result tables of README.md, BENCHMARKS.md, docs/training.md and docs/fidelity.md from the committed results in
     experiments/results/ (each between its ``<!-- table: NAME ... -->`` and ``<!-- end table -->``
     comments), or check them."""
 
-    files: tuple[Path, ...] = (ROOT / "README.md", ROOT / "BENCHMARKS.md", ROOT / "docs" / "training.md")
-    """Markdown files whose generated tables are written (or checked); README.md, BENCHMARKS.md and
-    docs/training.md must hold theirs (:data:`REQUIRED`)."""
+    files: tuple[Path, ...] = (
+        ROOT / "README.md",
+        ROOT / "BENCHMARKS.md",
+        ROOT / "docs" / "training.md",
+        ROOT / "docs" / "fidelity.md",
+    )
+    """Markdown files whose generated tables are written (or checked); README.md, BENCHMARKS.md,
+    docs/training.md and docs/fidelity.md must hold theirs (:data:`REQUIRED`)."""
     check: bool = False
     """Write nothing: exit 1, naming the file, the table and its first line that differs, if a table
     disagrees with what the results give."""
