@@ -88,8 +88,8 @@ class TD3Config:
     body's real motors of max(|u| - action_penalty_from, 0)^2 (with action_penalty_from 0, u^2: the action
     regulariser of Andrychowicz et al. 2017, on tanh's input instead of its output, so that its gradient
     does not vanish where tanh is flat). It keeps the policy off its action bounds, where the critic's
-    gradient vanishes and clipping removes half of the exploration noise: the ostrich's dive plateau
-    (docs/training.md). 0: TD3's loss."""
+    gradient vanishes and clipping removes half of the exploration noise (which marked the ostrich's dive
+    plateau; the dive itself can outlast it, docs/training.md). 0: TD3's loss."""
     action_penalty_from: float = 0.0
     """|u| up to which the action penalty is 0: 0 penalises every output; 2 only the ones whose action is
     beyond tanh(2) = 0.96 in magnitude, near the bounds."""
