@@ -257,7 +257,12 @@ def train(
         primary = jax.process_index() == 0
         metrics = MetricsWriter(run_dir, resumed_at=info.env_steps if resume else None) if primary else None
         try:
-            return _loop(experiment, state, info, checkpoints, metrics, progress and primary, after_iteration)
+            result = _loop(
+                experiment, state, info, checkpoints, metrics, progress and primary, after_iteration
+            )
+            if experiment.env.shards is not None:
+                print(_physics_calls_line(experiment.env.physics_calls()))
+            return result
         finally:
             if metrics is not None:
                 metrics.close()
@@ -281,6 +286,7 @@ def _print_start(experiment: Experiment) -> None:
         sizes = ", ".join(f"{len(bucket.tasks)} x {bucket.limbs}" for bucket in experiment.learner.buckets)
         print(f"updates in {len(experiment.learner.buckets)} limb buckets (bodies x limbs): {sizes}")
     print(experiment.placement.describe())
+    print(env.describe_physics())
     flag, flag_rows = _replay_rows_flag(config, env.num_bodies)
     print(
         check_buffer_fits(
@@ -297,6 +303,12 @@ def _print_start(experiment: Experiment) -> None:
             episode_ends=config.td3.episode_ends,
         )
     )
+
+
+def _physics_calls_line(calls: dict[int, int]) -> str:
+    """One line: the MuJoCo C calls this process made in training, by device (:meth:`MultiTaskEnv.physics_calls`)."""
+    counts = ", ".join(f"{count} on device {device}" for device, count in sorted(calls.items()))
+    return f"physics calls of process {jax.process_index()} in training: {counts or 'none'}"
 
 
 def _start_state(

@@ -4,9 +4,11 @@ each body run two variants of it (--variants 2), whose rows are split over the m
 
     XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_twins.py BODY_FOLDER OUT
 
-Prints one JSON object: the mesh lines the runs printed, the largest differences between the twins'
-states (after training, and after each was resumed on the other layout), whether the copies hold
-different variants (the same in both seeds), the evaluation's returns and the exported policy's actions.
+Prints one JSON object: the mesh lines the runs printed, the physics calls the sharded runs made on each
+device, the largest differences between the twins' states (after training, and after each was resumed on
+the other layout), whether the copies hold different variants (the same in both seeds), the evaluation's
+returns, the exported policy's actions, and an environment whose copies do not divide by the devices
+(3 of hopper_3 on 4 devices) stepped over them against one device.
 """
 
 from __future__ import annotations
@@ -18,10 +20,13 @@ import sys
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from conftest import tiny_train_config
+from jax.sharding import Mesh
 
 from swat_jax import export, serving
+from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.eval import evaluate
 from swat_jax.runs.checkpoint import Checkpoints
 from swat_jax.runs.experiment import Experiment
@@ -70,21 +75,45 @@ def largest_differences(first, second) -> dict[str, float]:
     return {"relative": relative, "integers_equal": integers_equal}
 
 
-def trained(run_config, devices: int, resume: bool = False) -> str:
-    """Train (or resume) on the first ``devices`` devices; returns the mesh line the run printed."""
+def trained(run_config, devices: int, resume: bool = False) -> tuple[str, str | None]:
+    """Train (or resume) on the first ``devices`` devices; returns the mesh line the run printed and its
+    physics calls line (None on one device)."""
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         train(run_config, progress=False, devices=devices, resume=resume)
-    return next(line for line in printed.getvalue().splitlines() if line.startswith("mesh of"))
+    lines = printed.getvalue().splitlines()
+    calls = [line for line in lines if line.startswith("physics calls")]
+    return next(line for line in lines if line.startswith("mesh of")), (calls[0] if calls else None)
+
+
+def padded_copies(folder: Path, steps: int = 4) -> dict:
+    """3 copies of hopper_3 stepped over the 4 devices (one padding copy) and on one device: whether every
+    array of the two states is equal, bit for bit, and the calls each device made."""
+    mesh = Mesh(np.asarray(jax.devices()).reshape(2, 2), ("seeds", "tasks"))
+    states, calls = [], None
+    for layout in (mesh, None):
+        env = MultiTaskEnv([str(folder / "hopper_3.xml")], copies=3, physics="c", mesh=layout)
+        step = jax.jit(env.step)
+        state = env.reset(jax.random.PRNGKey(0))
+        action = jnp.full((1, *env.action_shape), 0.3)
+        for _ in range(steps):
+            state, _ = step(state, action)
+        states.append(jax.device_get(state))
+        calls = calls or env.physics_calls()
+    equal = all(
+        np.asarray(a).tobytes() == np.asarray(b).tobytes()
+        for a, b in zip(jax.tree.leaves(states[0]), jax.tree.leaves(states[1]), strict=True)
+    )
+    return {"equal": equal, "calls": {str(device): count for device, count in calls.items()}}
 
 
 def main(folder: Path, out: Path) -> None:
     sharded, unsharded = config(out, folder, "sharded", 80), config(out, folder, "unsharded", 80)
-    meshes = [trained(sharded, 4), trained(unsharded, 1)]
+    lines = [trained(sharded, 4), trained(unsharded, 1)]
     after_training = largest_differences(final_state(sharded), final_state(unsharded))
 
     sharded, unsharded = config(out, folder, "sharded", 120), config(out, folder, "unsharded", 120)
-    meshes += [trained(sharded, 1, resume=True), trained(unsharded, 4, resume=True)]
+    lines += [trained(sharded, 1, resume=True), trained(unsharded, 4, resume=True)]
     resumed = [final_state(sharded), final_state(unsharded)]
     after_resume = largest_differences(*resumed)
     variants = np.asarray(resumed[0].env.bodies[0].variant.index)  # [seeds, copies]
@@ -99,7 +128,9 @@ def main(folder: Path, out: Path) -> None:
         json.dumps(
             {
                 "devices": len(jax.devices()),
-                "meshes": meshes,
+                "meshes": [mesh for mesh, _ in lines],
+                "physics_calls": [calls for _, calls in lines],
+                "padded": padded_copies(folder),
                 "after_training": after_training,
                 "after_resume": after_resume,
                 "steps_per_task": [state.steps_per_task.item() for state in resumed],

@@ -7,6 +7,7 @@ before JAX starts, so the run happens in a subprocess (tests/sharded_twins.py).
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -57,7 +58,7 @@ def sharded_twins(tmp_path_factory):
         timeout=1200,
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads(result.stdout.strip().splitlines()[-1])
+    return json.loads(result.stdout.strip().splitlines()[-1]) | {"stderr": result.stderr}
 
 
 def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
@@ -68,6 +69,28 @@ def test_a_run_over_a_2x2_mesh_equals_its_unsharded_twin(sharded_twins):
     assert unsharded == "mesh of 1 cpu device: seeds 1 x tasks 1"
     assert sharded_twins["after_training"]["integers_equal"]
     assert sharded_twins["after_training"]["relative"] < 1e-3, "float32 sums in another order, nothing more"
+
+
+def test_each_device_calls_the_physics_for_its_own_copies(sharded_twins):
+    """The sharded runs (4 devices, trained and resumed) made the same number of MuJoCo C calls on every
+    device; nothing was gathered onto one device for a callback, so XLA had nothing to warn about."""
+    trained, unsharded, resumed_unsharded, resumed = sharded_twins["physics_calls"]
+    assert unsharded is None and resumed_unsharded is None, "one device: no calls line"
+    for line in (trained, resumed):
+        counts = re.fullmatch(r"physics calls of process 0 in training: (.*)", line).group(1).split(", ")
+        numbers = {int(count.split(" on device ")[0]) for count in counts}
+        assert [count.split(" on device ")[1] for count in counts] == ["0", "1", "2", "3"], line
+        assert len(numbers) == 1 and numbers.pop() > 0, line
+    assert "Involuntary full rematerialization" not in sharded_twins["stderr"]
+    assert "[SPMD]" not in sharded_twins["stderr"]
+
+
+def test_copies_that_do_not_divide_by_the_devices_are_padded(sharded_twins):
+    """3 copies on 4 devices: one padding copy; the states equal one device's bit for bit, and each device
+    made the same calls (a reset and 4 steps of 2 calls each)."""
+    padded = sharded_twins["padded"]
+    assert padded["equal"]
+    assert padded["calls"] == {str(device): 9 for device in range(4)}
 
 
 def test_checkpoints_resume_on_the_other_layout(sharded_twins):

@@ -3,7 +3,7 @@ through ``jax.distributed`` (a localhost coordinator, JAX's CPU collectives, one
 two-seed run, checkpoint, resume, and end with the state of the same run in one process on two devices.
 
 Each process is one "host": its device is half of the 2-device mesh (seeds 2 x tasks 1), so each process
-holds and updates one seed (the C physics, a host callback, runs on process 0 for both), process 0 writes
+holds, steps (its own MuJoCo C calls) and updates one seed, process 0 writes
 the metrics of both, and each writes its shards of every checkpoint into the shared run directory. The
 one-process twin gets its 2 devices from XLA's fake host devices
 (``--xla_force_host_platform_device_count=2``) and runs the same partitioned program. docs/gpus-and-hosts.md
@@ -45,6 +45,13 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("localhost", 0))
         return probe.getsockname()[1]
+
+
+def physics_calls(output: str) -> dict[int, int]:
+    """{device id: MuJoCo C calls} of the "physics calls of process P in training" line of a run's output."""
+    line = next(line for line in output.splitlines() if line.startswith("physics calls of process"))
+    counts = line.split(": ", 1)[1].split(", ")
+    return {int(device): int(count) for count, device in (item.split(" on device ") for item in counts)}
 
 
 Command = tuple[list[str], Path, dict[str, str]]
@@ -114,6 +121,17 @@ def test_two_hosts_train_checkpoint_resume_and_end_as_one_process_on_two_devices
         assert MESH in output.splitlines(), output[-3000:]
     for output in resumed:
         assert f"resumed from {hosts.directory() / 'checkpoints' / '40'}" in output
+    for outputs in (first, resumed):
+        calls = [physics_calls(output) for output in outputs]
+        assert [len(process_calls) for process_calls in calls] == [1, 1], f"one device each: {calls}"
+        assert calls[0].keys() != calls[1].keys(), f"each host calls from its own device: {calls}"
+        counts = [count for process_calls in calls for count in process_calls.values()]
+        assert counts[0] == counts[1] > 0, f"both hosts step their seed's copies alike: {calls}"
+    twin_calls = physics_calls(twin_output)
+    per_host = sum(count for output in (first[0], resumed[0]) for count in physics_calls(output).values())
+    assert list(twin_calls.values()) == [per_host, per_host], "the twin's devices split the same calls"
+    for output in (*first, *resumed, twin_output):
+        assert "[SPMD]" not in output, "no physics result is replicated and re-split"
     steps = sorted(
         int(path.name) for path in (hosts.directory() / "checkpoints").iterdir() if path.name.isdigit()
     )

@@ -7,6 +7,12 @@ fake CPU devices (the flag must be set before JAX starts) and trains over the fi
 costs, not a speed-up; on a multi-GPU machine ``--real`` uses the real devices.
 
     python -m experiments.benchmarks.sharding [--env hopper] [--seeds 4] [--devices 1 2 4] [--iterations 5]
+        [--preset fast] [--overlap-steps 20]
+
+With more than one device on MuJoCo C physics it also records when each device's physics calls run
+(``CSimulator.timeline``) over ``--overlap-steps`` environment steps of the run's bodies and prints their
+concurrency: the calls' summed time over the time in which any call ran (1.0: the devices take turns; N: N
+devices compute at once all along).
 """
 
 from __future__ import annotations
@@ -17,13 +23,15 @@ import time
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import tyro
 
 from experiments.benchmarks.presets import measure
 from experiments.machine import cpu_model, host_cores, software_versions
 from experiments.workers import Job, in_fresh_process
 from swat_jax.compilation_cache import enable_caches
-from swat_jax.runs.config import EnvConfig, NetworkSizes, TrainConfig
+from swat_jax.runs.config import PRESETS, EnvConfig, NetworkSizes, Preset, TrainConfig
+from swat_jax.runs.experiment import Experiment
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 from swat_jax.td3.sharding import placement
@@ -43,10 +51,21 @@ class Options:
     """Timed iterations per arm."""
     real: bool = False
     """The machine's real devices, not fake CPU ones."""
+    overlap_steps: int = 20
+    """Environment steps over which the physics calls' overlap is recorded on the largest device count (0: none)."""
+    preset: Preset | None = None
+    """Time this preset's iterations (its network and schedule, no random steps) instead of the small arm
+    (SWAT width 32, 1 layer, 8 copies, chunk 25, 20 updates of batch 100 per body per iteration)."""
 
 
-def arm_config(env: str, seeds: int) -> TrainConfig:
-    """SWAT of width 32, 1 layer; 8 copies, chunk 25, 20 updates of batch 100 per body per iteration."""
+def arm_config(env: str, seeds: int, preset: Preset | None = None) -> TrainConfig:
+    """``preset`` on ``env`` with ``seeds`` seeds, its random steps skipped so that every timed iteration
+    updates; without a preset, SWAT of width 32, 1 layer; 8 copies, chunk 25, 20 updates of batch 100 per
+    body per iteration."""
+    if preset is not None:
+        base = PRESETS[preset]
+        iteration = dataclasses.replace(base.iteration, random_steps=0)
+        return dataclasses.replace(base, env=env, seeds=seeds, iteration=iteration)
     return TrainConfig(
         env=env,
         seeds=seeds,
@@ -57,9 +76,10 @@ def arm_config(env: str, seeds: int) -> TrainConfig:
     )
 
 
-def arm(env: str, seeds: int, devices: int, iterations: int) -> dict[str, Any]:
-    """One arm, measured in this process: its mesh, compile seconds and steps per second."""
-    config = arm_config(env, seeds)
+def arm(env: str, seeds: int, devices: int, iterations: int, preset: Preset | None = None) -> dict[str, Any]:
+    """One arm, measured in this process: its mesh, compile seconds, steps per second and seconds per
+    iteration."""
+    config = arm_config(env, seeds, preset)
     chosen = jax.devices()[:devices]
     result = measure(f"{devices} devices", config, iterations, chosen)
     layout = placement(seeds, len(config.training_bodies()), config.envs.copies, chosen)
@@ -68,16 +88,65 @@ def arm(env: str, seeds: int, devices: int, iterations: int) -> dict[str, Any]:
         "mesh": layout.describe().split(";")[0],
         "compile_s": result.compile_seconds,
         "steps_per_second": result.env_steps_per_second * seeds,
+        "iteration_s": result.seconds_per_iteration,
     }
+
+
+def overlap(env: str, seeds: int, devices: int, steps: int, preset: Preset | None = None) -> dict[str, Any]:
+    """The environment of ``arm_config``'s run over ``devices`` devices (C physics), stepped ``steps`` times
+    after a warm-up with its physics calls recorded: their concurrency (module docstring) and count per
+    device."""
+    multi = Experiment.build(arm_config(env, seeds, preset), jax.devices()[:devices]).env
+    step = jax.jit(multi.step)
+    state = multi.reset(jax.random.split(jax.random.PRNGKey(0), seeds))
+    action = jnp.zeros((seeds, multi.num_bodies, *multi.action_shape))
+    state = jax.block_until_ready(step(state, action))[0]
+    timeline: list[tuple[int, float, float]] = []
+    for body in multi.envs:
+        body.simulator.timeline = timeline
+    for _ in range(steps):
+        state = jax.block_until_ready(step(state, action))[0]
+    busy = sum(end - start for _, start, end in timeline)
+    union = union_length([(start, end) for _, start, end in timeline])
+    return {
+        "devices": devices,
+        "calls": {
+            str(shard): sum(s == shard for s, *_ in timeline) for shard in sorted({s for s, *_ in timeline})
+        },
+        "concurrency": busy / union if union else float("nan"),
+    }
+
+
+def union_length(intervals: list[tuple[float, float]]) -> float:
+    """The length of the union of ``intervals`` (start, end)."""
+    total, reached = 0.0, float("-inf")
+    for start, end in sorted(intervals):
+        total += max(0.0, end - max(start, reached))
+        reached = max(reached, end)
+    return total
 
 
 def run_arm(args: Options, devices: int) -> dict[str, Any]:
     """One arm in a fresh process, with fake CPU devices unless ``--real``."""
+    job = Job(
+        arm,
+        {
+            "env": args.env,
+            "seeds": args.seeds,
+            "devices": devices,
+            "iterations": args.iterations,
+            "preset": args.preset,
+        },
+    )
+    return in_fresh_process(job, fake_devices(args))
+
+
+def fake_devices(args: Options) -> dict[str, str]:
+    """The environment of a worker: this one's, with ``max(--devices)`` fake CPU devices unless ``--real``."""
     environment = dict(os.environ)
     if not args.real:
         environment["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={max(args.devices)}"
-    job = Job(arm, {"env": args.env, "seeds": args.seeds, "devices": devices, "iterations": args.iterations})
-    return in_fresh_process(job, environment)
+    return environment
 
 
 def main() -> None:
@@ -86,19 +155,48 @@ def main() -> None:
 
     start = time.perf_counter()
     rows = [run_arm(args, devices) for devices in args.devices]
+    most = max(args.devices)
+    recorded = (
+        in_fresh_process(
+            Job(
+                overlap,
+                {
+                    "env": args.env,
+                    "seeds": args.seeds,
+                    "devices": most,
+                    "steps": args.overlap_steps,
+                    "preset": args.preset,
+                },
+            ),
+            fake_devices(args),
+        )
+        if args.overlap_steps and most > 1
+        else None
+    )
     print(f"CPU: {cpu_model()}, {host_cores()} cores; {software_versions()}")
+    arm_name = (
+        f"the {args.preset} preset (no random steps)"
+        if args.preset
+        else "SWAT width 32, 1 layer, 8 copies, chunk 25, 20 updates of batch 100 per body per iteration"
+    )
     print(
-        f"SWAT width 32, 1 layer on {args.env}, {args.seeds} seeds, 8 copies, chunk 25, 20 updates of batch "
-        f"100 per body per iteration; {'real' if args.real else 'fake CPU'} devices; "
+        f"{arm_name} on {args.env}, {args.seeds} seeds; {'real' if args.real else 'fake CPU'} devices; "
         f"{time.perf_counter() - start:.0f} s in all"
     )
-    print("| devices | mesh | compile (s) | env steps/s (all seeds) | vs 1 device |")
-    print("|---|---|---|---|---|")
+    print("| devices | mesh | compile (s) | env steps/s (all seeds) | iteration (s) | vs 1 device |")
+    print("|---|---|---|---|---|---|")
     base = rows[0]["steps_per_second"]
     for row in rows:
         print(
             f"| {row['devices']} | {row['mesh']} | {row['compile_s']:.1f} | {row['steps_per_second']:,.0f} | "
-            f"{row['steps_per_second'] / base:.2f} |"
+            f"{row['iteration_s']:.2f} | {row['steps_per_second'] / base:.2f} |"
+        )
+    if recorded:
+        calls = ", ".join(f"{count} on device {shard}" for shard, count in recorded["calls"].items())
+        print(
+            f"physics calls on {recorded['devices']} devices over {args.overlap_steps} environment steps: "
+            f"{calls}; concurrency {recorded['concurrency']:.2f} (1.00: taking turns; "
+            f"{recorded['devices']}.00: all at once)"
         )
 
 

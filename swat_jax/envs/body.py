@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from swat_jax.envs.c_physics import EXPLOSION_SPEED, CData, CSimulator
+from swat_jax.envs.c_physics import EXPLOSION_SPEED, CData, CSimulator, PhysicsShards
 from swat_jax.envs.observation import (
     ObservationLayout,
     layout_joint_range,
@@ -133,10 +133,13 @@ class BodyEnv:
             state started with one of its rows (``reset(rng, variant)``) steps that variant, through the
             same program for every variant (physics "jax" or "c"); a state started without one runs the
             first variant.
+        shards: physics "c" only: the device mesh its calls split over
+            (:class:`~swat_jax.envs.c_physics.PhysicsShards`; vmap the copies with its axes as
+            ``spmd_axis_name``); None: one call on the first device.
 
     Raises:
         ValueError: a variant is not the same tree of limbs, or variants or stale kinematics with
-            physics="warp".
+            physics="warp", or shards with physics other than "c".
     """
 
     def __init__(
@@ -148,8 +151,11 @@ class BodyEnv:
         physics: Physics = "jax",
         worlds: int = 1,
         variants: Sequence[Morphology | str | Path] = (),
+        shards: PhysicsShards | None = None,
     ):
         physics = resolve_physics(physics)
+        if shards is not None and physics != "c":
+            raise ValueError(f"shards split MuJoCo C's calls (physics 'c'); physics {physics!r} takes none")
         if stale_kinematics and physics == "warp":
             raise ValueError(
                 "stale_kinematics reads the positions MuJoCo's step leaves, which Warp does not keep; use "
@@ -166,7 +172,7 @@ class BodyEnv:
         self.task = self.morphology.family.target
         """The 3D task (:class:`~swat_jax.morphology.types.Target`); None for a planar body."""
         self.simulator: Simulator | CSimulator = (
-            CSimulator(models, self.morphology.name, joint_axes=self.task is not None)
+            CSimulator(models, self.morphology.name, joint_axes=self.task is not None, shards=shards)
             if physics == "c"
             else Simulator(self.mj_model, physics, worlds)
         )

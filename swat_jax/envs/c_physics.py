@@ -20,6 +20,13 @@ Stale kinematics (``BodyEnv(stale_kinematics=True)``, the original code's reads)
 leaves: :meth:`CSimulator.advance` returns the positions, orientations and sites of the step's last
 integrator stage, with frame velocities (``mj_comVel``) of the new qvel at those positions.
 
+Devices and hosts: given a device mesh (:class:`PhysicsShards`), each call runs under ``jax.shard_map``:
+every device calls MuJoCo for its own block of the copies (the caller vmaps over the copies with the mesh's
+axes as ``spmd_axis_name``, as :class:`~swat_jax.envs.multi_task.MultiTaskEnv` does), on its own share
+of the threads, and every host for its own devices. The blocks run at the same time (MuJoCo releases the
+GIL), and no simulator state travels to one device and back. Without a mesh, the call is one callback on
+the first device.
+
 Instability: a copy whose qvel leaves ``[-EXPLOSION_SPEED, EXPLOSION_SPEED]`` or stops being finite
 stops stepping and is returned with NaN qpos and qvel, which the environment terminates as it does an
 MJX state that exploded (MJX steps the remaining physics steps of that environment step first). The
@@ -28,9 +35,13 @@ check runs before MuJoCo's own (at 1e10), so MuJoCo neither resets the copy nor 
 
 from __future__ import annotations
 
+import collections
+import dataclasses
+import functools
 import math
 import os
 import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -39,6 +50,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from jax.sharding import Mesh, PartitionSpec
 
 EXPLOSION_SPEED = 1e3
 """A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
@@ -97,6 +109,60 @@ class CData:
         return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), other, self)
 
 
+@dataclasses.dataclass(frozen=True)
+class PhysicsShards:
+    """The device mesh a run's C physics calls split over: shard i (``jax.lax.axis_index`` over every axis
+    of the mesh, row-major) is device ``mesh.devices.flat[i]``, and steps the i-th block of the copies."""
+
+    mesh: Mesh
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """Every axis of the mesh: the copies split over all of them (``vmap``'s ``spmd_axis_name``)."""
+        return tuple(self.mesh.axis_names)
+
+    @property
+    def size(self) -> int:
+        """Shards: the mesh's devices."""
+        return int(self.mesh.devices.size)
+
+    def local(self) -> dict[int, int]:
+        """{shard: its place among this process's devices of the mesh}: the shards whose calls this
+        process (host) makes."""
+        mine = [i for i, d in enumerate(self.mesh.devices.flat) if d.process_index == jax.process_index()]
+        return {shard: place for place, shard in enumerate(mine)}
+
+    def call(
+        self, function: Callable[..., tuple[jax.Array, ...]], *inputs: jax.Array
+    ) -> tuple[jax.Array, ...]:
+        """``function(shard [] int32, *inputs)`` on every device, each with its own block of the inputs'
+        vmapped axis (inside ``vmap(..., spmd_axis_name=self.axes)``; outside one, every device the
+        whole inputs)."""
+        spec = PartitionSpec()
+
+        def per_device(*block: jax.Array) -> tuple[jax.Array, ...]:
+            return function(jax.lax.axis_index(self.axes), *block)
+
+        mapped = jax.shard_map(per_device, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
+        return mapped(*inputs)
+
+
+@dataclasses.dataclass
+class _Slot:
+    """What one device's calls compute with: a lock, its share of the threads, each thread's ``MjData``
+    per model."""
+
+    pool: ThreadPoolExecutor
+    threads: int
+    datas: list[dict[int, mujoco.MjData]]
+    lock: threading.Lock = dataclasses.field(default_factory=threading.Lock)
+
+    @classmethod
+    def make(cls, threads: int, place: int) -> _Slot:
+        pool = ThreadPoolExecutor(threads, thread_name_prefix=f"swat_jax_c_physics_{place}")
+        return cls(pool, threads, [{} for _ in range(threads)])
+
+
 class CSimulator:
     """One body on MuJoCo C: the initial state and the advance / derive functions, as
     :class:`~swat_jax.envs.physics.Simulator` on MJX.
@@ -105,8 +171,10 @@ class CSimulator:
         mj_models: the body's compiled model, or its variants' (one per row of the body's variant table;
             a state's ``index`` picks one). All share one topology (the same sizes).
         name: the body's name, for errors.
-        threads: threads that step the copies of one call; default: the CPUs this process may use.
+        threads: threads that step the copies; default: the CPUs this process may use. With ``shards``,
+            each of this process's devices calls with its own share (at least one thread).
         joint_axes: also compute the joints' world axes (``xaxis``), which a 3D body's observation reads.
+        shards: the device mesh the calls split over (module docstring); None: one call on the first device.
 
     Raises:
         ValueError: no model, models of different sizes, or ``threads`` < 1.
@@ -120,6 +188,7 @@ class CSimulator:
         name: str = "body",
         threads: int | None = None,
         joint_axes: bool = False,
+        shards: PhysicsShards | None = None,
     ):
         if not mj_models:
             raise ValueError("CSimulator needs at least one model")
@@ -133,9 +202,16 @@ class CSimulator:
         model = self.models[0]
         self.name = name
         self.state_size = mujoco.mj_stateSize(model, STATE)
-        self._datas: list[dict[int, mujoco.MjData]] = [{} for _ in range(self.threads)]
-        self._lock = threading.Lock()
-        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="swat_jax_c_physics")
+        self.shards = shards if shards is not None and shards.size > 1 else None
+        places = self.shards.local() if self.shards else {0: 0}
+        self._slots = {
+            shard: _Slot.make(max(1, self.threads // len(places)), place) for shard, place in places.items()
+        }
+        self.calls: collections.Counter[int] = collections.Counter()
+        """Host calls made by this process so far, by shard (device of the mesh; 0 without shards)."""
+        self.timeline: list[tuple[int, float, float]] | None = None
+        """Set it to a list to record every later call as (shard, start, end), ``time.perf_counter`` seconds:
+        whether the devices' calls overlap in time."""
         example = mujoco.MjData(model)
         self.derived = DERIVED + ((JOINT_AXES,) if joint_axes else ())
         """The derived fields this simulator's states hold."""
@@ -159,28 +235,31 @@ class CSimulator:
     def advance(self, data: CData, steps: int, index: jax.Array | None = None) -> CData:
         """``steps`` calls of ``mj_step`` from ``data`` (its ctrl applied) on model ``index``; the derived
         fields as the last one leaves them, with ``cvel`` of the new qvel (module docstring)."""
-        outputs = jax.pure_callback(
-            lambda *args: self._host_call(_advance_copy, args, steps),
-            _result_shapes(data, self.state_size, self.derived),
-            *self._inputs(data, index),
-            vmap_method="broadcast_all",
-        )
-        return self._with_outputs(data, outputs)
+        return self._with_outputs(data, self._call(_advance_copy, data, index, steps))
 
     def derive(self, data: CData, index: jax.Array | None = None) -> CData:
         """Positions, orientations, sites and frame velocities computed from qpos and qvel
         (``mj_kinematics``, ``mj_comPos``, ``mj_comVel``)."""
-        outputs = jax.pure_callback(
-            lambda *args: self._host_call(_derive_copy, args, 0),
-            _result_shapes(data, self.state_size, self.derived),
-            *self._inputs(data, index),
-            vmap_method="broadcast_all",
-        )
-        return self._with_outputs(data, outputs)
+        return self._with_outputs(data, self._call(_derive_copy, data, index, 0))
 
     def velocities(self, data: CData, index: jax.Array | None = None) -> CData:
         """``data`` itself: :meth:`advance` has computed the frame velocities of its new qvel."""
         return data
+
+    def _call(
+        self, compute: CopyFunction, data: CData, index: jax.Array | None, steps: int
+    ) -> tuple[jax.Array, ...]:
+        """``compute`` on every copy of ``data``: one host callback, or one per device with shards."""
+        shapes = _result_shapes(data, self.state_size, self.derived)
+
+        def callback(shard: jax.Array, *inputs: jax.Array) -> tuple[jax.Array, ...]:
+            host = functools.partial(self._host_call, compute, steps)
+            return jax.pure_callback(host, shapes, shard, *inputs, vmap_method="broadcast_all")
+
+        inputs = self._inputs(data, index)
+        if self.shards is None:
+            return callback(jnp.zeros((), jnp.int32), *inputs)
+        return self.shards.call(callback, *inputs)
 
     def _inputs(self, data: CData, index: jax.Array | None) -> tuple[jax.Array, ...]:
         state = jnp.concatenate([data.qpos, data.qvel, data.act, data.qacc_warmstart], axis=-1)
@@ -201,11 +280,15 @@ class CSimulator:
         )
 
     def _host_call(
-        self, compute: CopyFunction, args: tuple[np.ndarray, ...], steps: int
+        self, compute: CopyFunction, steps: int, shard: np.ndarray, *args: np.ndarray
     ) -> tuple[np.ndarray, ...]:
-        """Every copy of a call: the arguments' leading axes flattened to one batch [B], split into
-        contiguous blocks, one per thread, each thread with its own ``MjData`` per model."""
+        """Every copy of a call on device ``shard`` (broadcast to the copies' axes): the arguments' leading
+        axes flattened to one batch [B], split into contiguous blocks, one per thread of the device's
+        share, each thread with its own ``MjData`` per model."""
         state, remainder, ctrl, index = (np.asarray(arg) for arg in args)
+        device = int(np.asarray(shard).flat[0])
+        slot = self._slots[device]
+        self.calls[device] += 1
         lead = index.shape
         batch = math.prod(lead)
         full = _joined(state.reshape(batch, -1), remainder.reshape(batch, 2, -1))
@@ -218,17 +301,22 @@ class CSimulator:
         derived = {
             name: np.empty((batch, *shape), np.float64) for name, shape in self._derived_shapes.items()
         }
-        blocks = [rows for rows in np.array_split(np.arange(batch), min(self.threads, batch)) if len(rows)]
-        with self._lock:
+        blocks = [rows for rows in np.array_split(np.arange(batch), min(slot.threads, batch)) if len(rows)]
+        start = time.perf_counter()
+        with slot.lock:
             if len(blocks) == 1:
-                self._run_block(compute, 0, blocks[0], full, ctrl, index, derived, steps)
+                self._run_block(compute, slot.datas[0], blocks[0], full, ctrl, index, derived, steps)
             else:
                 jobs = [
-                    self._pool.submit(self._run_block, compute, t, rows, full, ctrl, index, derived, steps)
+                    slot.pool.submit(
+                        self._run_block, compute, slot.datas[t], rows, full, ctrl, index, derived, steps
+                    )
                     for t, rows in enumerate(blocks)
                 ]
                 for job in jobs:
                     job.result()
+        if self.timeline is not None:
+            self.timeline.append((device, start, time.perf_counter()))
         rounded, left = _split(full)
         return (
             rounded.reshape(*lead, -1),
@@ -242,7 +330,7 @@ class CSimulator:
     def _run_block(
         self,
         compute: CopyFunction,
-        thread: int,
+        datas: dict[int, mujoco.MjData],
         rows: np.ndarray,
         full: np.ndarray,
         ctrl: np.ndarray,
@@ -250,9 +338,8 @@ class CSimulator:
         derived: dict[str, np.ndarray],
         steps: int,
     ) -> None:
-        """``compute`` on the copies ``rows`` with thread ``thread``'s ``MjData``s; ``full`` [B, S] and
-        ``derived`` written in place."""
-        datas = self._datas[thread]
+        """``compute`` on the copies ``rows`` with one thread's ``datas`` (its ``MjData`` per model); ``full``
+        [B, S] and ``derived`` written in place."""
         for row in rows:
             variant = int(index[row])
             model = self.models[variant]

@@ -23,6 +23,12 @@ Several independent runs (seeds) step together as a leading seed axis [S] on eve
 each seed splits its own keys, and the physics sees the seeds' copies folded into one batch of S x n.
 Folding, not an outer ``vmap``, is what keeps tracing cheap: ``vmap`` over a function that already vmaps
 MJX's loops batches every loop body once more (a second pass over the whole physics per seed axis).
+
+On MuJoCo C physics with a device mesh (``mesh``), every physics call splits the folded copies over all the
+mesh's devices: each device calls MuJoCo for its own block (:class:`~swat_jax.envs.c_physics.PhysicsShards`).
+A body whose S x n copies do not divide by the devices gets padding copies up to the next multiple (at most
+one fewer than the devices; copies of its first copy, stepped and dropped). MJX physics needs none of this:
+XLA partitions its operations like the rest of the program.
 """
 
 from __future__ import annotations
@@ -35,10 +41,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from jax.sharding import Mesh
 
 from swat_jax import axes
 from swat_jax.envs.body import BodyEnv, EnvState, Variant
-from swat_jax.envs.physics import Physics
+from swat_jax.envs.c_physics import PhysicsShards
+from swat_jax.envs.physics import Physics, resolve_physics
 from swat_jax.morphology.mjcf import load
 from swat_jax.morphology.types import Morphology
 
@@ -136,6 +144,8 @@ class MultiTaskEnv:
         variants: per body, its variants (:mod:`swat_jax.morphology.variants`; empty: the body itself):
             copy j of a body runs its variant j mod (number of variants), in every seed, through one
             program per body whatever their number (:class:`~swat_jax.envs.body.BodyEnv`).
+        mesh: the devices the program runs on; on physics "c" with more than one device, each calls MuJoCo
+            for its own block of every body's copies (module docstring). None: the calls run on one device.
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -154,6 +164,7 @@ class MultiTaskEnv:
         seeds: int = 1,
         lock_step: bool = False,
         variants: Sequence[Sequence[Morphology | str]] = (),
+        mesh: Mesh | None = None,
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
@@ -165,6 +176,9 @@ class MultiTaskEnv:
             raise ValueError(f"{largest.name} has {largest.num_limbs} limbs, more than max_limbs={max_limbs}")
         if variants and len(variants) != len(morphologies):
             raise ValueError(f"variants: one sequence per body ({len(morphologies)}), got {len(variants)}")
+        split = mesh is not None and mesh.devices.size > 1 and resolve_physics(physics) == "c"
+        self.shards = PhysicsShards(mesh) if split else None
+        """The devices the physics calls split over (None: one device, or MJX physics)."""
         self.envs = tuple(
             BodyEnv(
                 body,
@@ -173,6 +187,7 @@ class MultiTaskEnv:
                 physics=physics,
                 worlds=2 * copies * seeds,
                 variants=body_variants,
+                shards=self.shards,
             )
             for body, body_variants in zip(morphologies, variants or [()] * len(morphologies), strict=True)
         )
@@ -210,7 +225,7 @@ class MultiTaskEnv:
         rng, *keys = self._split(rng, seeds)
         bodies = tuple(
             _unfolded(
-                jax.vmap(env.reset)(
+                self._over_copies(env.reset)(
                     _folded(self._copy_keys(key, seeds), seeds, self.copies), self._copy_variants(env, seeds)
                 ),
                 seeds,
@@ -241,6 +256,7 @@ class MultiTaskEnv:
         both = [
             _step_and_restart(
                 env,
+                self._over_copies,
                 _folded(body_state, seeds, self.copies),
                 _folded(self._body_action(action, k, env.num_limbs), seeds, self.copies),
                 _folded(self._copy_keys(key, seeds), seeds, self.copies),
@@ -323,6 +339,53 @@ class MultiTaskEnv:
 
         others = jax.tree_util.tree_map(chosen, new.replace(bodies=()), old.replace(bodies=()))
         return others.replace(bodies=bodies)
+
+    def describe_physics(self) -> str:
+        """One line: which physics steps the bodies, on how many threads, over which devices."""
+        simulator = self.envs[0].simulator
+        if simulator.implementation != "c":
+            return f"physics: MJX ({simulator.implementation!r}), compiled into the program"
+        threads = f"{simulator.threads} thread{'s' * (simulator.threads > 1)}"
+        if self.shards is None:
+            return f"physics: MuJoCo C on {threads}, one call per step for every copy"
+        local = len(self.shards.local())
+        each = max(1, simulator.threads // local)
+        return (
+            f"physics: MuJoCo C; each of the mesh's {self.shards.size} devices steps its own block of every "
+            f"body's copies; this process has {local} of them, {each} thread{'s' * (each > 1)} each"
+        )
+
+    def physics_calls(self) -> dict[int, int]:
+        """MuJoCo C calls this process has made so far, over every body, by the id of the device that made
+        them (every call on the first device without a mesh); empty on MJX."""
+        calls: dict[int, int] = {}
+        for env in self.envs:
+            if env.simulator.implementation != "c":
+                continue
+            for shard, count in env.simulator.calls.items():
+                device = self.shards.mesh.devices.flat[shard].id if self.shards else shard
+                calls[device] = calls.get(device, 0) + count
+        return calls
+
+    def _over_copies(self, function: Callable) -> Callable:
+        """``jax.vmap(function)`` over a leading copies axis; with :attr:`shards`, each device computes its
+        own block of the copies, padded to a multiple of the devices (module docstring)."""
+        if self.shards is None:
+            return jax.vmap(function)
+        mapped = jax.vmap(function, spmd_axis_name=self.shards.axes)
+        devices = self.shards.size
+
+        def over_copies(*args: Any) -> Any:
+            copies = jax.tree_util.tree_leaves(args)[0].shape[0]
+            padding = -copies % devices
+            if not padding:
+                return mapped(*args)
+            padded = jax.tree_util.tree_map(
+                lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padding, axis=0)]), args
+            )
+            return jax.tree_util.tree_map(lambda x: x[:copies], mapped(*padded))
+
+        return over_copies
 
     def _split(self, rng: jax.Array, seeds: tuple[int, ...]) -> tuple[jax.Array, ...]:
         """K + 1 keys [*S] from each seed's key: the seed's next key, then one per body."""
@@ -407,10 +470,15 @@ def _unfolded(tree: Any, seeds: tuple[int, ...], copies: int) -> Any:
 
 
 def _step_and_restart(
-    env: BodyEnv, state: EnvState, action: jax.Array, keys: jax.Array
+    env: BodyEnv,
+    over_copies: Callable[[Callable], Callable],
+    state: EnvState,
+    action: jax.Array,
+    keys: jax.Array,
 ) -> tuple[EnvState, EnvState]:
     """Every copy [n] stepped, and a fresh episode for every copy from its key (``keys`` [n]; used where
-    the step ended one).
+    the step ended one); the physics calls mapped over the copies by ``over_copies`` (``jax.vmap``'s
+    contract).
 
     The stepped and the fresh simulator states share one kinematics pass over 2n copies, so the
     compiled step holds one kinematics program per body instead of two (with ``stale_kinematics`` the
@@ -418,14 +486,14 @@ def _step_and_restart(
     """
     copies = action.shape[0]
     variant = state.variant
-    simulated = jax.vmap(env.simulate)(state.data, action, variant)
+    simulated = over_copies(env.simulate)(state.data, action, variant)
     initial, target = jax.vmap(env.new_episode)(keys, variant)
     if env.stale_kinematics:
-        simulated = jax.vmap(env.step_kinematics)(simulated, variant)
-        initial = jax.vmap(env.kinematics)(initial, variant)
+        simulated = over_copies(env.step_kinematics)(simulated, variant)
+        initial = over_copies(env.kinematics)(initial, variant)
     else:
         both = jax.tree_util.tree_map(_joined, simulated, initial)
-        both = jax.vmap(env.kinematics)(both, jax.tree_util.tree_map(_joined, variant, variant))
+        both = over_copies(env.kinematics)(both, jax.tree_util.tree_map(_joined, variant, variant))
         simulated, initial = (
             jax.tree_util.tree_map(lambda x, s=s: x[s], both)
             for s in (slice(None, copies), slice(copies, None))

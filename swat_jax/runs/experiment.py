@@ -13,6 +13,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
 
 from swat_jax.compilation_cache import compile_cached, compiled_at_first_call
 from swat_jax.envs.multi_task import MultiTaskEnv
@@ -70,6 +71,8 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
+        devices = jax.devices() if devices is None else devices
+        layout = placement(config.seeds, len(tasks.bodies), config.envs.copies, devices)
         env = make_env(
             config,
             tasks.bodies,
@@ -78,14 +81,13 @@ class Experiment:
             lock_step=config.iteration.rounds,
             variants=config.envs.variants,
             variation=config.envs.variant_draw(),
+            mesh=layout.mesh,
         )
         if config.init_from:
             check_transfer(config, env.observation_features)
         actor, critic = make_actor_critic(
             network, env.observation_features, config.td3.atoms, env.motors_per_limb
         )
-        devices = jax.devices() if devices is None else devices
-        layout = placement(config.seeds, env.num_bodies, config.envs.copies, devices)
         # A bucket gathers tasks across the task axis: only where that axis is not split over devices.
         buckets = (
             limb_buckets([body.num_limbs for body in tasks.bodies], config.limb_buckets)
@@ -236,7 +238,13 @@ class Experiment:
     @functools.cached_property
     def _evaluation_env(self) -> MultiTaskEnv:
         """The train bodies with ``config.eval_episodes`` copies each, for every seed."""
-        return make_env(self.config, self.tasks.bodies, self.config.eval_episodes, self.config.seeds)
+        return make_env(
+            self.config,
+            self.tasks.bodies,
+            self.config.eval_episodes,
+            self.config.seeds,
+            mesh=self.placement.mesh,
+        )
 
     def _recipe(self, env: MultiTaskEnv, *extra: Any) -> tuple[Any, ...] | None:
         """The program cache's recipe of a program of this run on ``env`` (:mod:`swat_jax.runs.programs`),
@@ -272,18 +280,21 @@ def make_env(
     lock_step: bool = False,
     variants: int = 0,
     variation: Variation | None = None,
+    mesh: Mesh | None = None,
 ) -> MultiTaskEnv:
     """The environments of ``bodies`` as a run with ``config`` simulates them (its observation switches and
     physics): ``copies`` per body, for ``seeds`` seeds stepped together (the one place a config becomes a
     :class:`~swat_jax.envs.multi_task.MultiTaskEnv`). With ``variants`` K, copy j of each body runs variant
     j mod K drawn by ``variation`` (default: spread 0.2, seed 0): the variants are written to a temporary folder, compiled, and the
-    folder removed (the draw is a function of the body, K, the spread and the seed)."""
+    folder removed (the draw is a function of the body, K, the spread and the seed). ``mesh``: the devices
+    the run's programs run on, over which MuJoCo C's calls split."""
     settings = dict(
         torso_relative_x=config.envs.torso_relative_x,
         stale_kinematics=config.envs.stale_kinematics,
         physics=resolve_physics(config.envs.physics),
         seeds=seeds,
         lock_step=lock_step,
+        mesh=mesh,
     )
     if not variants:
         return MultiTaskEnv(bodies, copies, **settings)
