@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
 import math
 import shutil
 
@@ -20,7 +19,6 @@ from swat_jax.networks import make_actor_critic, network_config, task_set
 from swat_jax.plot import DIAGNOSTIC_ROWS, plot_diagnostics
 from swat_jax.plot import main as plot_main
 from swat_jax.runs.checkpoint import flatten
-from swat_jax.runs.config import TrainConfig, load_config
 from swat_jax.runs.metrics import DIAGNOSTICS, MetricsWindow, read_metrics
 from swat_jax.td3 import diagnostics
 from swat_jax.td3.diagnostics import EpisodeValues
@@ -227,12 +225,3 @@ def test_the_diagnostics_figure_refuses_a_run_without_them_and_a_body_it_did_not
     error = capsys.readouterr().err
     assert "no diag/* columns" in error and "--iteration.no-diagnostics" in error
     assert not (tmp_path / "f.png").exists()
-
-
-def test_a_run_written_before_the_diagnostics_resumes_without_them(tmp_path):
-    """Its config.json has no diagnostics switch, and its checkpoints no episode values: it loads with them
-    off, so its state has the arrays its checkpoints hold; a new run has them on."""
-    fields = json.loads(TrainConfig(env="hopper").to_json())
-    assert fields["iteration"].pop("diagnostics") is True
-    (tmp_path / "config.json").write_text(json.dumps(fields))
-    assert load_config(tmp_path / "config.json").iteration.diagnostics is False

@@ -20,7 +20,7 @@ from swat_jax.envs import MultiTaskEnv
 from swat_jax.envs.multi_task import lock_step_round
 from swat_jax.morphology import load
 from swat_jax.networks import make_actor_critic, network_config, task_set
-from swat_jax.runs.config import PRESETS, TrainConfig, load_config
+from swat_jax.runs.config import PRESETS
 from swat_jax.td3.iteration import (
     IterationConfig,
     init_train_state,
@@ -154,19 +154,6 @@ def test_sets_of_more_than_8_bodies_share_4m_replay_rows_as_the_original(bodies,
     assert PRESETS["fast"].iteration.rows_per_task(bodies) == 50_000
     cheetah = dataclasses.replace(PRESETS["paper"], env="cheetah", steps=10_000_000)
     assert cheetah.replay_rows(12) == 333_333
-
-
-def test_a_run_written_before_these_switches_resumes_with_the_loop_it_had(tmp_path):
-    """A config.json without the switches (every run before them) loads with the values that computed it:
-    updates after every chunk, time-limit next states as reached, 500K rows per body."""
-    fields = json.loads(PRESETS["paper"].to_json())
-    for name in ("round_updates", "reset_next_state", "capacity_all"):
-        del fields["iteration"][name]
-    (tmp_path / "config.json").write_text(json.dumps(fields))
-    iteration = load_config(tmp_path / "config.json").iteration
-    assert not iteration.round_updates and not iteration.reset_next_state and iteration.capacity_all is None
-    (tmp_path / "config.json").write_text(PRESETS["paper"].to_json())
-    assert load_config(tmp_path / "config.json") == PRESETS["paper"] == TrainConfig()
 
 
 ORIGINAL_RUNS = (

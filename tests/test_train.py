@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -564,28 +563,6 @@ def test_a_config_file_gives_the_defaults_that_flags_override(tmp_path, capsys):
     assert "give one of them" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="drop --config"):
         resolve(*parse_command(["--config", str(path), "--resume", str(tmp_path / "r")]))
-
-
-def test_a_config_json_of_the_flat_layout_still_loads(tmp_path):
-    """Runs written before the network sizes and environment switches had groups still evaluate and plot."""
-    fields = json.loads(TrainConfig(env="hopper").to_json())
-    flat = {key: value for key, value in fields.items() if key not in ("network", "envs")}
-    flat.update(width=48, copies=3, physics="c", torso_relative_x=True, reference_inorder=False)
-    path = tmp_path / "config.json"
-    path.write_text(json.dumps(flat))
-    config = load_config(path)
-    assert (config.network.width, config.network.reference_inorder) == (48, False)
-    assert (config.envs.copies, config.envs.physics, config.envs.torso_relative_x) == (3, "c", True)
-
-
-def test_a_fast_run_written_before_the_action_penalty_resumes_without_it(tmp_path):
-    """A config.json of the fast preset from before --td3.action-penalty has no such field: the run goes on
-    with TD3's actor loss, as it trained, not with the preset's penalty of today."""
-    fields = json.loads(dataclasses.replace(PRESETS["fast"], env="hopper").to_json())
-    assert fields["td3"].pop("action_penalty") > 0 and fields["td3"].pop("action_penalty_from") == 0
-    path = tmp_path / "config.json"
-    path.write_text(json.dumps(fields))
-    assert load_config(path).td3.action_penalty == 0.0
 
 
 def test_cli_reports_an_existing_run_directory(trained_run, capsys):

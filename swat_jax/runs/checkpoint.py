@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from swat_jax.runs import formats
 from swat_jax.runs.integrity import damage, write_record
 from swat_jax.td3.sharding import all_processes_reach
 
@@ -83,20 +84,21 @@ class CheckpointInfo:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object stored as the ``info`` item (fields that are None are left out)."""
-        return {
+        fields = {
             field.name: list(value) if isinstance(value, tuple) else value
             for field in dataclasses.fields(self)
             if (value := getattr(self, field.name)) is not None
         }
+        return formats.versioned(fields, formats.CHECKPOINT_VERSION)
 
     @classmethod
     def from_json(cls, data: dict[str, Any], where: Path) -> CheckpointInfo:
-        """Read a stored ``info`` item (CheckpointError naming ``where`` if it lacks a field it needs)."""
-        if "seeds" not in data:
-            raise CheckpointError(
-                f"{where} was written before runs had a seed axis (swat_jax 0.1.0 before multi-seed training); "
-                "train the run again"
-            )
+        """Read a stored ``info`` item of any layout (:mod:`swat_jax.runs.formats`); CheckpointError naming
+        ``where`` if it cannot be read or lacks a field it needs."""
+        try:
+            data = formats.current_checkpoint_info(data)
+        except formats.FormatError as error:
+            raise CheckpointError(f"{where}: {error}") from error
         fields = {field.name for field in dataclasses.fields(cls)}
         required = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
         if missing := sorted(required - set(data)):

@@ -43,6 +43,7 @@ from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
 from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 from swat_jax.networks.smp import most_children
+from swat_jax.runs import formats
 from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 from swat_jax.td3.schedules import SCHEDULES
@@ -410,7 +411,9 @@ class TrainConfig:
         return min(self.iteration.rows_per_task(num_bodies), 1 << (stored - 1).bit_length())
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2) + "\n"
+        """The config.json of this config (:data:`~swat_jax.runs.formats.CONFIG_VERSION`'s layout)."""
+        fields = formats.versioned(dataclasses.asdict(self), formats.CONFIG_VERSION)
+        return json.dumps(fields, indent=2) + "\n"
 
 
 def fixed(config: TrainConfig) -> TrainConfig:
@@ -510,52 +513,11 @@ def load_config(path: str | Path) -> TrainConfig:
         raise ConfigError(f"{path}: no such file; is this a swat_jax run directory?") from error
     except (OSError, json.JSONDecodeError) as error:
         raise ConfigError(f"{path}: not readable JSON ({error}); restore it or start a new run") from error
-    return _build(TrainConfig, _with_earlier_switches(_regrouped(fields)), path)
-
-
-REGROUPED = {
-    **{name: "network" for name in (*NETWORK_SIZES, "smp_hidden", "reference_inorder")},
-    **{name: "envs" for name in ("copies", "variants", "variation", "variant_seed", "physics")},
-    **{name: "envs" for name in ("torso_relative_x", "stale_kinematics")},
-}
-"""The fields that a config.json of swat_jax before December 2026 holds at its top level, by their group."""
-
-
-def _regrouped(fields: Any) -> Any:
-    """``fields`` of a config.json with the top-level fields of :data:`REGROUPED` moved into their groups, so
-    runs written before the groups existed still evaluate, export and plot."""
-    if not isinstance(fields, dict):
-        return fields
-    fields = dict(fields)
-    for name, group in REGROUPED.items():
-        if name in fields and isinstance(fields.get(group, {}), dict):
-            fields[group] = {**fields.get(group, {}), name: fields.pop(name)}
-    return fields
-
-
-EARLIER_SWITCHES = {
-    "iteration": {
-        "round_updates": False,
-        "reset_next_state": False,
-        "capacity_all": None,
-        "diagnostics": False,
-    }
-}
-"""Switches whose defaults changed what a run computes or keeps in its checkpoints (the original's training
-loop's, and the learning diagnostics' state), with the value that gives what a run written before them
-computed and saved."""
-
-
-def _with_earlier_switches(fields: Any) -> Any:
-    """``fields`` of a config.json with the switches of :data:`EARLIER_SWITCHES` it lacks set to their earlier
-    value, so a run written before them resumes with the computation (and the checkpoints) it had."""
-    if not isinstance(fields, dict):
-        return fields
-    fields = dict(fields)
-    for group, switches in EARLIER_SWITCHES.items():
-        if isinstance(fields.get(group, {}), dict):
-            fields[group] = {**switches, **fields.get(group, {})}
-    return fields
+    try:
+        current = formats.current_config(fields)
+    except formats.FormatError as error:
+        raise ConfigError(f"{path}: {error}") from error
+    return _build(TrainConfig, current, path)
 
 
 def _build(cls: type, fields: Any, path: Path) -> Any:
