@@ -3,7 +3,8 @@
 ``network_config("swat")`` is the paper's model (Table 1, sections 4.1-4.3); the ablations of
 section 5.4 (Figure 6) each change one structural-embedding field, and AMORPHEUS (Kurin et al.
 2021) is the same transformer with neither embedding. SMP (Huang et al. 2020) is the
-message-passing baseline.
+message-passing baseline. :class:`NetworkSizes` is what a training run sets of them (the ``--network.*``
+flags), which :meth:`swat_jax.runs.config.TrainConfig.network_config` turns into a NetworkConfig.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from swat_jax.errors import ConfigError, require_positive
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES
 from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 
@@ -159,3 +161,41 @@ def network_config(name: str, **overrides: Any) -> NetworkConfig:
     if unknown:
         raise ValueError(f"unknown NetworkConfig fields {unknown}; valid fields: {', '.join(sorted(fields))}")
     return NetworkConfig(**{**NAMED_VARIANTS[name], **overrides})
+
+
+NETWORK_SIZES = ("width", "heads", "layers", "feedforward", "max_traversal_positions", "max_children")
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkSizes:
+    """The actor's and critic's sizes (``--network.*``); None keeps the algorithm's."""
+
+    width: int | None = None
+    """Transformer model width; None keeps the algorithm's (128)."""
+    heads: int | None = None
+    """Attention heads; None keeps the algorithm's (2)."""
+    layers: int | None = None
+    """Transformer layers; None keeps the algorithm's (3)."""
+    feedforward: int | None = None
+    """Feed-forward width of each layer; None keeps the algorithm's (256)."""
+    max_traversal_positions: int | None = None
+    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps the original code's 15."""
+    max_children: int | None = None
+    """SMP: child slots per limb, at least the most children of any limb; None takes that most over the training bodies, as the original code does (Hopper++ 1, Walker++ and Cheetah++ 2, the others 4)."""
+    smp_hidden: int | None = None
+    """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
+    reference_inorder: bool = True
+    """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
+    initialisation: Initialisation = "original"
+    """Initial weights: original (the original PyTorch code's, the paper preset: uniform kernels and biases, traversal tables N(0, 1), every transformer layer a copy of the first; docs/fidelity.md, rows 6-11 and 20) or flax (Flax's defaults, the fast preset)."""
+    observation_normalisation: bool = False
+    """Standardise every limb feature by running statistics of the observations collected so far, one set over all real limbs (FastTD3's normaliser), in actor and critic; policy files and exported policies carry the statistics. Off in both presets (docs/training.md)."""
+
+    def __post_init__(self) -> None:
+        for name in (*NETWORK_SIZES, "smp_hidden"):
+            if getattr(self, name) is not None:
+                require_positive(f"--network.{name.replace('_', '-')}", getattr(self, name))
+        if self.initialisation not in INITIALISATIONS:
+            raise ConfigError(
+                f"--network.initialisation must be one of {', '.join(INITIALISATIONS)}, got {self.initialisation!r}"
+            )

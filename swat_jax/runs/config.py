@@ -37,11 +37,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from swat_jax.envs.physics import PHYSICS, Physics
+from swat_jax.envs.config import EnvConfig
+from swat_jax.errors import ConfigError, require_positive
 from swat_jax.morphology import SETS, get_set, load
-from swat_jax.morphology.variants import Variation
 from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, network_config
-from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
+from swat_jax.networks.config import NETWORK_SIZES, NetworkSizes
 from swat_jax.networks.smp import most_children
 from swat_jax.runs import formats
 from swat_jax.td3.iteration import IterationConfig
@@ -57,18 +57,7 @@ CONFIG_FILE = "config.json"
 """The resolved config in every run directory."""
 
 
-class ConfigError(ValueError):
-    """A configuration that cannot run, or a config file that cannot be read; the message says the fix."""
-
-
-NETWORK_SIZES = ("width", "heads", "layers", "feedforward", "max_traversal_positions", "max_children")
 PRESET_NAMES: tuple[str, ...] = typing.get_args(Preset)
-
-
-def require_positive(flag: str, value: Any) -> None:
-    """ConfigError naming ``flag`` unless ``value`` is a whole number of at least 1 (a bool is not)."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")
 
 
 HOST_ONLY = "host_only"
@@ -80,91 +69,6 @@ def host_only(default: Any) -> Any:
     it logs, evaluates and checkpoints, its first seed and transfer source, and how its bodies are named
     (the programs see them as models); :func:`swat_jax.runs.programs.recipe` leaves it out."""
     return dataclasses.field(default=default, metadata={HOST_ONLY: True})
-
-
-@dataclasses.dataclass(frozen=True)
-class NetworkSizes:
-    """The actor's and critic's sizes (``--network.*``); None keeps the algorithm's."""
-
-    width: int | None = None
-    """Transformer model width; None keeps the algorithm's (128)."""
-    heads: int | None = None
-    """Attention heads; None keeps the algorithm's (2)."""
-    layers: int | None = None
-    """Transformer layers; None keeps the algorithm's (3)."""
-    feedforward: int | None = None
-    """Feed-forward width of each layer; None keeps the algorithm's (256)."""
-    max_traversal_positions: int | None = None
-    """Rows of each traversal table of SWAT's positional embedding, at least the limbs of the largest body; None keeps the original code's 15."""
-    max_children: int | None = None
-    """SMP: child slots per limb, at least the most children of any limb; None takes that most over the training bodies, as the original code does (Hopper++ 1, Walker++ and Cheetah++ 2, the others 4)."""
-    smp_hidden: int | None = None
-    """SMP: width of both hidden layers of its bottom-up and top-down modules; None keeps the paper's (64, 64) up and (400, 300) down."""
-    reference_inorder: bool = True
-    """Use the original code's in-order traversal for the positional embedding (the paper preset; docs/fidelity.md); off: a true binary in-order (the fast preset)."""
-    initialisation: Initialisation = "original"
-    """Initial weights: original (the original PyTorch code's, the paper preset: uniform kernels and biases, traversal tables N(0, 1), every transformer layer a copy of the first; docs/fidelity.md, rows 6-11 and 20) or flax (Flax's defaults, the fast preset)."""
-    observation_normalisation: bool = False
-    """Standardise every limb feature by running statistics of the observations collected so far, one set over all real limbs (FastTD3's normaliser), in actor and critic; policy files and exported policies carry the statistics. Off in both presets (docs/training.md)."""
-
-    def __post_init__(self) -> None:
-        for name in (*NETWORK_SIZES, "smp_hidden"):
-            if getattr(self, name) is not None:
-                require_positive(f"--network.{name.replace('_', '-')}", getattr(self, name))
-        if self.initialisation not in INITIALISATIONS:
-            raise ConfigError(
-                f"--network.initialisation must be one of {', '.join(INITIALISATIONS)}, got {self.initialisation!r}"
-            )
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """How the bodies are simulated and observed (``--envs.*``)."""
-
-    copies: int = 1
-    """Parallel environment copies per body."""
-    variants: int = 0
-    """Train on variants: copy j of each body runs variant j mod K of K variants drawn from it (its limbs' lengths, radii, masses, joint ranges, damping and gears scaled; docs/bodies-and-environments.md), fixed for the run, all through one program per body; at most --envs.copies. 0: the bodies themselves."""
-    variation: float = 0.2
-    """With --envs.variants: spread of the variants' factors, each uniform in [1 - variation, 1 + variation]; in [0, 1)."""
-    variant_seed: int = 0
-    """With --envs.variants: seed of the variants' draw (python -m swat_jax.morphology variants BODY -k K --variation X --seed S writes the same bodies)."""
-    physics: Physics = "auto"
-    """Where the physics runs: c (MuJoCo's C library, called from the jitted program: nothing to compile, the fastest on a CPU), jax (MJX compiled into the XLA program: for GPUs), warp (MuJoCo Warp kernels called from it; needs pip install -e '.[warp]'), or auto: c where JAX runs on the CPU, jax on a GPU (docs/training.md, "Physics")."""
-    torso_relative_x: bool = False
-    """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
-    stale_kinematics: bool = True
-    """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --envs.physics jax, c or auto); off: kinematics of the state after the step (the fast preset)."""
-
-    def __post_init__(self) -> None:
-        require_positive("--envs.copies", self.copies)
-        if not 0 <= self.variants <= self.copies:
-            raise ConfigError(
-                f"--envs.variants must be 0 (off) or a number up to --envs.copies ({self.copies}): each copy "
-                f"runs one variant; got {self.variants}"
-            )
-        try:
-            self.variant_draw()
-        except ValueError:
-            raise ConfigError(
-                f"--envs.variation must lie in [0, 1) (factors stay positive), got {self.variation}"
-            ) from None
-        if self.physics not in PHYSICS:
-            raise ConfigError(f"--envs.physics must be one of {', '.join(PHYSICS)}, got {self.physics!r}")
-        if self.variants and self.physics == "warp":
-            raise ConfigError(
-                "--envs.variants runs on --envs.physics c, jax or auto (the variants' numbers are inputs of "
-                "the step; Warp's model is not)"
-            )
-        if self.stale_kinematics and self.physics == "warp":
-            raise ConfigError(
-                "--envs.stale-kinematics reads what MuJoCo's step leaves, which Warp does not keep; add "
-                "--envs.no-stale-kinematics or use --envs.physics c, jax or auto"
-            )
-
-    def variant_draw(self) -> Variation:
-        """How the run's variants are drawn (--envs.variation, --envs.variant-seed); ValueError for a bad spread."""
-        return Variation(self.variation, self.variant_seed)
 
 
 @dataclasses.dataclass(frozen=True)
