@@ -149,6 +149,7 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
     "fast-ap0.003-2dev": Candidate(action_penalty=0.003),
     "fast-ap0.1-from2-2dev": Candidate(action_penalty=0.1, action_penalty_from=2.0),
+    "fast-ap0.003-p0-2dev": Candidate(action_penalty=0.003, pessimism=0.0),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step rounds,
 stopping at the original's counted budget); every other is its preset at the scale's sizes and
