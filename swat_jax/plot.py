@@ -582,11 +582,11 @@ PlotCommand = (
 diagnostics from training runs (PNG; curves also write their numbers as CSV)."""
 
 
-def run(command: CurvesCommand | EmbeddingsCommand | RelationsCommand | DiagnosticsCommand) -> str:
-    """Draw and save the figure the command asks for; returns what was written."""
+def run(command: CurvesCommand | EmbeddingsCommand | RelationsCommand | DiagnosticsCommand) -> str | None:
+    """Draw and save the figure the command asks for (:func:`save` says where); for curves, returns where
+    their numbers were written."""
     command.draw()
-    extra = f" and {command.output.with_suffix('.csv')}" if isinstance(command, CurvesCommand) else ""
-    return f"wrote {command.output}{extra}"
+    return f"wrote {command.output.with_suffix('.csv')}" if isinstance(command, CurvesCommand) else None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -184,12 +184,15 @@ def test_the_diagnostics_change_nothing_the_iteration_trains(one_hopper):
     np.testing.assert_array_equal(with_loss, without_loss)
 
 
-def test_the_diagnostics_figure_draws_a_line_per_seed_of_each_column(trained_run, tmp_path):
+def test_the_diagnostics_figure_draws_a_line_per_seed_of_each_column(trained_run, tmp_path, capsys):
     """The tiny run (2 seeds, hopper_3): a row per diagnostic, a line per seed of its metrics.csv values (two
-    per seed where the estimate meets the return), the seeds' colours the same in every row."""
+    per seed where the estimate meets the return), the seeds' colours the same in every row. The command
+    says once where it wrote the figure."""
     output = tmp_path / "diagnostics.png"
     assert plot_main(["diagnostics", str(trained_run), "-o", str(output)]) == 0
     assert output.stat().st_size > 0
+    printed = capsys.readouterr()
+    assert (printed.out + printed.err).count(f"wrote {output}") == 1
     figure = plot_diagnostics(trained_run, tmp_path / "again.png")
     rows = read_metrics(trained_run)
     assert len(figure.axes) == len(DIAGNOSTIC_ROWS)
