@@ -14,7 +14,9 @@ written by ``tests/reference_numbers.py``).
     /tmp/mj233/bin/python scripts/sgrl_bodies.py PATH/TO/sgrl/src/environments
 
 The benchmark's 3D hoppers write ``pos="0.13/2 0 ..."`` for the foot, which no MuJoCo reads; as in the
-2D bodies, it is read as 0.065.
+2D bodies, it is read as 0.065. Their geoms have a contact margin of 0.001: MuJoCo 2 gives a contact the
+larger of its two geoms' margins, MuJoCo 3 their sum, so each geom is written with half of it (every geom
+of such a body has the same margin; a body whose margins differ is refused).
 """
 
 from __future__ import annotations
@@ -55,7 +57,16 @@ def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, index: int) -> str | None:
     return mujoco.mj_id2name(model, obj, index)
 
 
-def _geom_attributes(model: mujoco.MjModel, g: int) -> dict[str, str]:
+def contact_margins(model: mujoco.MjModel) -> np.ndarray:
+    """Per geom [ngeom], the margin under which MuJoCo 3 (a contact's margin: the sum of its geoms') gives
+    every contact the margin MuJoCo 2.3.3 gave it (the larger of its geoms'): half the body's one margin."""
+    margins = np.unique(model.geom_margin)
+    if len(margins) > 1:
+        raise ValueError(f"geom margins {margins.tolist()}: MuJoCo 3 cannot give every contact the larger")
+    return model.geom_margin / 2
+
+
+def _geom_attributes(model: mujoco.MjModel, g: int, margin: float) -> dict[str, str]:
     attributes = {}
     name = _name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
     if name:
@@ -79,7 +90,7 @@ def _geom_attributes(model: mujoco.MjModel, g: int) -> dict[str, str]:
         condim=str(model.geom_condim[g]),
         contype=str(model.geom_contype[g]),
         conaffinity=str(model.geom_conaffinity[g]),
-        margin=_numbers([model.geom_margin[g]]),
+        margin=_numbers([margin]),
         solref=_numbers(model.geom_solref[g]),
         solimp=_numbers(model.geom_solimp[g]),
     )
@@ -123,7 +134,7 @@ def _mjcf(name: str, model: mujoco.MjModel) -> str:
     joints = [_joint_attributes(model, j) for j in range(model.njnt) if model.jnt_type[j] == 3]
     if any(model.jnt_type[j] not in (0, 3) for j in range(model.njnt)) or model.jnt_type[0] != 0:
         raise ValueError(f"{name}: expected a free torso joint and hinges below it")
-    geoms = [_geom_attributes(model, g) for g in range(model.ngeom)]
+    geoms = [_geom_attributes(model, g, margin) for g, margin in enumerate(contact_margins(model))]
     joint_keys = ("armature", "damping", "stiffness", "solreflimit", "solimplimit")
     geom_keys = tuple(GEOM_DEFAULTS)
     joint_default = _common(joints, joint_keys)
