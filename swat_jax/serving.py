@@ -18,12 +18,19 @@ a NumPy ``.npz`` archive (read with ``allow_pickle=False``) holding
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
+
+from swat_jax.policy_files import (
+    ExportError,
+    PolicyFile,
+    StructureInput,
+    checked_metadata,
+    checked_suffix,
+)
 
 FORMAT = "swat_jax.exported_policy"
 """``metadata["format"]`` of every exported policy file."""
@@ -34,26 +41,15 @@ PROGRAM_KEY = "program"
 METADATA_KEY = "metadata"
 STRUCTURE_PREFIX = "structure."
 
-StructureInput = str | Mapping[str, Any] | Any
-"""A body name of the file, a mapping from structure field to array, or a StructureBatch slice."""
-
-
-class ExportError(ValueError):
-    """A run that cannot be exported as asked, or a file that is not a usable exported policy."""
+__all__ = ["ExportError", "ExportedPolicy", "StructureInput", "load", "policy_path"]
 
 
 def policy_path(path: str | Path) -> Path:
     """``path`` as a Path, checked to end in ``.npz``; ExportError otherwise."""
-    path = Path(path)
-    if path.suffix.lower() != SUFFIX:
-        raise ExportError(
-            f"{path}: an exported policy is a NumPy archive; use the suffix {SUFFIX}, "
-            f"not {path.suffix or '(none)'!r}"
-        )
-    return path
+    return checked_suffix(path, SUFFIX, "an exported policy is a NumPy archive")
 
 
-class ExportedPolicy:
+class ExportedPolicy(PolicyFile):
     """A policy read from an exported file; calling it needs only jax and numpy.
 
     ``policy(observation, structure)`` maps observation [batch, L, F] to actions [batch, L] ([batch, L, 3]
@@ -70,50 +66,17 @@ class ExportedPolicy:
         metadata: dict[str, Any],
         structures: dict[str, np.ndarray],
     ):
-        self.path = path
-        self.metadata = metadata
-        """The file's metadata (see the module docstring)."""
+        super().__init__(path, metadata, structures)
         self._exported = exported
         self._call = jax.jit(exported.call)
-        self._fields: list[str] = list(metadata["structure_fields"])
-        self._structures = structures
         self._by_name: dict[str, tuple[jax.Array, ...]] = {}
-
-    @property
-    def max_limbs(self) -> int:
-        """L: observations and structures are padded to this many limbs."""
-        return int(self.metadata["max_limbs"])
-
-    @property
-    def observation_features(self) -> int:
-        """F: observation values per limb."""
-        return int(self.metadata["observation_features"])
-
-    @property
-    def bodies(self) -> tuple[str, ...]:
-        """The body names whose structures the file holds (the run's train and test bodies)."""
-        return tuple(self.metadata["bodies"])
-
-    def structure(self, body: str) -> dict[str, np.ndarray]:
-        """One body's structure padded to L limbs, by field name (limb_mask [L], parents [L], ...)."""
-        if body not in self.bodies:
-            raise ValueError(f"{self.path} has no body {body!r}; it has {', '.join(self.bodies)}")
-        row = self.bodies.index(body)
-        return {name: self._structures[name][row] for name in self._fields}
 
     def __call__(self, observation: Any, structure: StructureInput) -> jax.Array:
         """observation [batch, L, F] (rows beyond the body's limbs are ignored), one body's structure ->
         actions [batch, L] ([batch, L, 3] for 3D bodies) float32 in [-1, 1], zero on padded limbs."""
         observation = np.asarray(observation) if not isinstance(observation, jax.Array) else observation
-        expected = (self.max_limbs, self.observation_features)
-        if observation.ndim != 3 or tuple(observation.shape[1:]) != expected or observation.shape[0] < 1:
-            raise ValueError(
-                f"observation must be [batch, {expected[0]}, {expected[1]}] (batch >= 1, limbs padded to max_limbs "
-                f"{expected[0]}, {expected[1]} observation features), got shape "
-                f"{tuple(observation.shape)}"
-            )
-        fields = self._structure_arrays(structure)
-        return self._call(observation.astype(np.float32), *fields)
+        self.check_observation(observation)
+        return self._call(observation.astype(np.float32), *self._structure_arrays(structure))
 
     def _structure_arrays(self, structure: StructureInput) -> tuple[Any, ...]:
         """The structure inputs of the program, in order, checked against its input shapes."""
@@ -123,20 +86,12 @@ class ExportedPolicy:
                     jax.device_put(array) for array in self.structure(structure).values()
                 )
             return self._by_name[structure]
-        arrays = []
-        for name, aval in zip(self._fields, self._exported.in_avals[1:], strict=True):
-            value = structure.get(name) if isinstance(structure, Mapping) else getattr(structure, name, None)
-            if value is None:
-                raise ValueError(f"structure has no field {name!r}; it needs {', '.join(self._fields)}")
-            if tuple(np.shape(value)) != tuple(aval.shape):
-                raise ValueError(
-                    f"structure.{name} must be {list(aval.shape)} {aval.dtype} (one body padded to max_limbs "
-                    f"{self.max_limbs}), got shape {list(np.shape(value))}"
-                )
-            arrays.append(
-                value.astype(aval.dtype) if isinstance(value, jax.Array) else np.asarray(value, aval.dtype)
-            )
-        return tuple(arrays)
+        avals = self._exported.in_avals[1:]
+        values = self.structure_fields(structure, [(aval.shape, aval.dtype) for aval in avals])
+        return tuple(
+            value.astype(aval.dtype) if isinstance(value, jax.Array) else np.asarray(value, aval.dtype)
+            for value, aval in zip(values, avals, strict=True)
+        )
 
 
 def load(path: str | Path) -> ExportedPolicy:
@@ -221,19 +176,4 @@ def _metadata(path: Path, archive: Any) -> dict[str, Any]:
         metadata = json.loads(str(archive[METADATA_KEY]))
     except (ValueError, TypeError) as error:
         raise ExportError(f"{path}: not an exported policy: its metadata is not JSON ({error})") from error
-    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
-        raise ExportError(f"{path}: not an exported policy: its metadata format is not {FORMAT!r}")
-    version = metadata.get("format_version")
-    if not isinstance(version, int) or version > FORMAT_VERSION:
-        raise ExportError(
-            f"{path}: format version {version!r} is newer than this swat_jax reads ({FORMAT_VERSION}); "
-            f"update swat_jax or export the policy again"
-        )
-    missing = [
-        key
-        for key in ("max_limbs", "observation_features", "structure_fields", "bodies")
-        if key not in metadata
-    ]
-    if missing:
-        raise ExportError(f"{path}: not a complete exported policy: its metadata has no {', '.join(missing)}")
-    return metadata
+    return checked_metadata(path, metadata, FORMAT, FORMAT_VERSION)
