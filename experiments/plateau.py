@@ -27,6 +27,7 @@ import tyro
 from experiments.original.curves import original_curves
 from experiments.original.returns import final_returns
 from experiments.original.runs import SETTINGS, ScaleName, original_runs
+from swat_jax.cli import run_command
 from swat_jax.morphology import get_set
 from swat_jax.runs.config import CONFIG_FILE, load_config
 from swat_jax.runs.metrics import read_metrics
@@ -113,13 +114,8 @@ def report(options: Options) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    options = tyro.cli(Options, args=argv, prog="python -m experiments.plateau")
-    try:
-        print(report(options))
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    return 0
+    """Run the command line; returns the exit status (2, with one error line, for a run that cannot be read)."""
+    return run_command(Options, report, argv, (ValueError, OSError), prog="python -m experiments.plateau")
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,11 @@ def test_welch_test_tells_a_real_difference_from_noise():
     assert returns.welch(low, shifted_by_noise) > 0.5
     assert returns.welch(low, far) < 1e-6
     assert math.isnan(returns.welch(returns.Final(np.array([1.0])), far)), "one seed has no variance"
+    constant, other = returns.Final(np.ones(4)), returns.Final(np.full(4, 2.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # scipy warns of catastrophic cancellation on constant samples
+        assert returns.welch(constant, constant) == 1.0, "equal and constant: no difference to find"
+        assert returns.welch(constant, other) == 0.0, "constant and apart: t is infinite"
 
 
 def test_time_to_reach_is_the_first_point_where_the_mean_over_seeds_gets_there():

@@ -72,10 +72,13 @@ def final_value(line: Mapping[int, float], settings: Settings, environment_set: 
 
 def welch(a: Final, b: Final) -> float:
     """Two-sided p-value of Welch's t-test (unequal variances) that the two seed samples share a mean (the
-    seeds with a final return); NaN with fewer than two a side."""
+    seeds with a final return); NaN with fewer than two a side; where neither sample varies (t undefined),
+    1 if their values are equal and 0 if not."""
     a, b = a.finite(), b.finite()
     if len(a.values) < 2 or len(b.values) < 2:
         return math.nan
+    if np.ptp(a.values) == 0 and np.ptp(b.values) == 0:
+        return 1.0 if a.values[0] == b.values[0] else 0.0
     return float(stats.ttest_ind(a.values, b.values, equal_var=False).pvalue)
 
 
