@@ -14,7 +14,12 @@ class ConfigError(ValueError):
     """A configuration that cannot run, or a config file that cannot be read; the message says the fix."""
 
 
+def is_positive_whole(value: Any) -> bool:
+    """Whether ``value`` is an int of at least 1 (a bool is not)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
 def require_positive(flag: str, value: Any) -> None:
     """ConfigError naming ``flag`` unless ``value`` is a whole number of at least 1 (a bool is not)."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if not is_positive_whole(value):
         raise ConfigError(f"{flag} must be a positive whole number, got {value!r}")

@@ -85,15 +85,31 @@ def serialize_actor(
         separate arguments in StructureBatch order.
     """
 
+    (batch,) = jax.export.symbolic_shape("batch")
+    observation = jax.ShapeDtypeStruct((batch, _limbs(structure), actor.obs_features), np.float32)
+    policy = jax.jit(_actor_function(actor, params))
+    exported = jax.export.export(policy, platforms=tuple(platforms))(observation, *_field_specs(structure))
+    return exported.serialize()
+
+
+def _actor_function(actor: LimbNetwork, params: Params) -> Any:
+    """``policy(observation [b, L, F], *structure fields) -> actions``: the function both formats export."""
+
     def policy(observation: jax.Array, *fields: jax.Array) -> jax.Array:
         return actor.apply(params, observation, StructureBatch(*fields))
 
-    (batch,) = jax.export.symbolic_shape("batch")
-    limbs = np.shape(structure.limb_mask)[0]
-    observation = jax.ShapeDtypeStruct((batch, limbs, actor.obs_features), np.float32)
-    fields = [jax.ShapeDtypeStruct(np.shape(field), np.asarray(field).dtype) for field in structure]
-    exported = jax.export.export(jax.jit(policy), platforms=tuple(platforms))(observation, *fields)
-    return exported.serialize()
+    return policy
+
+
+def _limbs(structure: StructureBatch) -> int:
+    """L of one body's padded structure."""
+    return np.shape(structure.limb_mask)[0]
+
+
+def _field_specs(structure: StructureBatch) -> list[jax.ShapeDtypeStruct]:
+    """The shapes and dtypes of one body's structure fields, the exported function's inputs after the
+    observation."""
+    return [jax.ShapeDtypeStruct(np.shape(field), np.asarray(field).dtype) for field in structure]
 
 
 def onnx_actor(actor: LimbNetwork, params: Params, structure: StructureBatch) -> Any:
@@ -117,15 +133,10 @@ def onnx_actor(actor: LimbNetwork, params: Params, structure: StructureBatch) ->
     except ImportError as error:
         raise ExportError(f"--format onnx needs jax2onnx: {CONVERTER_HINT}") from error
 
-    def policy(observation: jax.Array, *fields: jax.Array) -> jax.Array:
-        return actor.apply(params, observation, StructureBatch(*fields))
-
-    limbs = np.shape(structure.limb_mask)[0]
-    fields = [jax.ShapeDtypeStruct(np.shape(field), np.asarray(field).dtype) for field in structure]
     with _quiet("jax2onnx", "onnx_ir"):
         return to_onnx(
-            policy,
-            [("batch", limbs, actor.obs_features), *fields],
+            _actor_function(actor, params),
+            [("batch", _limbs(structure), actor.obs_features), *_field_specs(structure)],
             model_name="swat_jax_policy",
             input_names=[OBSERVATION_INPUT, *structure._fields],
             output_names=[ACTION_OUTPUT],

@@ -16,7 +16,6 @@ Importing this module imports neither jax nor onnxruntime; :func:`load` needs on
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -120,11 +119,7 @@ def load(path: str | Path) -> OnnxPolicy:
     stored = session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
     if stored is None:
         raise ExportError(f"{path}: an ONNX model, but not a swat_jax policy (no {METADATA_KEY!r} metadata)")
-    try:
-        metadata = json.loads(stored)
-    except ValueError as error:
-        raise ExportError(f"{path}: not an ONNX policy: its metadata is not JSON ({error})") from error
-    metadata = checked_metadata(path, metadata, FORMAT, FORMAT_VERSION)
+    metadata = checked_metadata(path, stored, FORMAT, FORMAT_VERSION)
     structures = structures_from_json(
         path, metadata.pop("structures", None), list(metadata["structure_fields"])
     )

@@ -10,6 +10,7 @@ order of the structure inputs, the bodies) and the padded structure arrays of ev
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -36,9 +37,13 @@ def checked_suffix(path: str | Path, suffix: str, kind: str) -> Path:
     return path
 
 
-def checked_metadata(path: Path, metadata: Any, file_format: str, version: int) -> dict[str, Any]:
-    """``metadata`` (parsed JSON) checked to be of ``file_format`` at ``version`` or earlier, with every
-    :data:`REQUIRED_METADATA` key; ExportError naming ``path`` and the fault otherwise."""
+def checked_metadata(path: Path, text: str, file_format: str, version: int) -> dict[str, Any]:
+    """The JSON metadata ``text`` parsed and checked to be of ``file_format`` at ``version`` or earlier, with
+    every :data:`REQUIRED_METADATA` key; ExportError naming ``path`` and the fault otherwise."""
+    try:
+        metadata = json.loads(text)
+    except ValueError as error:
+        raise ExportError(f"{path}: not an exported policy: its metadata is not JSON ({error})") from error
     if not isinstance(metadata, dict) or metadata.get("format") != file_format:
         raise ExportError(f"{path}: not an exported policy: its metadata format is not {file_format!r}")
     written = metadata.get("format_version")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from swat_jax.errors import ConfigError, require_positive
+from swat_jax.errors import ConfigError, is_positive_whole, require_positive
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES
 from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 
@@ -112,7 +112,7 @@ class NetworkConfig:
 
 
 def _require_positive_int(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    if not is_positive_whole(value):
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
 
 
