@@ -36,13 +36,17 @@ import tyro
 
 from swat_jax.cli import run_command
 from swat_jax.compilation_cache import enable_caches
+from swat_jax.envs.config import EnvConfig
+from swat_jax.envs.controller import body_interface, interface_arrays
 from swat_jax.morphology import Morphology, StructureBatch, get_set
 from swat_jax.morphology import load as load_body
+from swat_jax.morphology.mjcf import compile_model
 from swat_jax.networks import LimbNetwork, Params
-from swat_jax.onnx_policy import ACTION_OUTPUT, OBSERVATION_INPUT, onnx_path, structures_to_json
+from swat_jax.onnx_policy import ACTION_OUTPUT, OBSERVATION_INPUT, onnx_path
 from swat_jax.onnx_policy import FORMAT as ONNX_FORMAT
 from swat_jax.onnx_policy import FORMAT_VERSION as ONNX_FORMAT_VERSION
 from swat_jax.onnx_policy import METADATA_KEY as ONNX_METADATA_KEY
+from swat_jax.policy_files import arrays_to_json
 from swat_jax.runs.checkpoint import CheckpointError
 from swat_jax.runs.config import ConfigError, TrainConfig
 from swat_jax.runs.trained import load_policy
@@ -178,7 +182,7 @@ def write_onnx_policy(
     del model.metadata_props[:]
     entry = model.metadata_props.add()
     entry.key = ONNX_METADATA_KEY
-    entry.value = json.dumps({**metadata, "structures": structures_to_json(structures._asdict())})
+    entry.value = json.dumps({**metadata, "structures": arrays_to_json(structures._asdict())})
     _write_whole(path, model.SerializeToString())
     return metadata
 
@@ -303,6 +307,7 @@ def export_policy(
         "reference_inorder": config.network.reference_inorder,
         "torso_relative_x": config.envs.torso_relative_x,
         "network": dataclasses.asdict(config.network_config()),
+        "interfaces": interfaces_to_json(bodies, config.envs),
     }
     names, features = [body.name for body in bodies], policy.info.observation_features
     if file_format == "onnx":
@@ -310,6 +315,23 @@ def export_policy(
         return write_onnx_policy(output, model, structures, names, features, **details)
     program = serialize_actor(policy.actor, params, structure, platforms)
     return write_policy(output, program, structures, names, features, **details, platforms=list(platforms))
+
+
+def interfaces_to_json(bodies: Sequence[Morphology], envs: EnvConfig) -> dict[str, dict[str, Any]]:
+    """Each body's :class:`~swat_jax.envs.controller.BodyInterface` under the run's observation switches, as
+    the JSON a policy file's metadata holds (:meth:`swat_jax.policy_files.PolicyFile.interface`)."""
+    interfaces = {}
+    for body in bodies:
+        interface = body_interface(
+            body,
+            compile_model(body),
+            torso_relative_x=envs.torso_relative_x,
+            stale_kinematics=envs.stale_kinematics,
+        )
+        fields = interface_arrays(interface)
+        arrays = {name: value for name, value in fields.items() if isinstance(value, np.ndarray)}
+        interfaces[body.name] = {**fields, **arrays_to_json(arrays)}
+    return interfaces
 
 
 def _set_bodies(run_dir: str | Path, config: TrainConfig) -> tuple[list[Morphology], int]:

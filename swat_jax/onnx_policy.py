@@ -16,13 +16,19 @@ Importing this module imports neither jax nor onnxruntime; :func:`load` needs on
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from swat_jax.policy_files import ExportError, PolicyFile, StructureInput, checked_metadata, checked_suffix
+from swat_jax.policy_files import (
+    ExportError,
+    PolicyFile,
+    StructureInput,
+    arrays_from_json,
+    checked_metadata,
+    checked_suffix,
+)
 
 FORMAT = "swat_jax.onnx_policy"
 """``metadata["format"]`` of every ONNX policy file."""
@@ -38,33 +44,6 @@ RUNTIME_HINT = "pip install onnxruntime==1.31.1 (or pip install 'swat-jax[onnx]'
 def onnx_path(path: str | Path) -> Path:
     """``path`` as a Path, checked to end in ``.onnx``; ExportError otherwise."""
     return checked_suffix(path, SUFFIX, "an ONNX policy is an ONNX model")
-
-
-def structures_to_json(structures: Mapping[str, np.ndarray]) -> dict[str, dict[str, Any]]:
-    """Structure arrays by field as JSON-ready values: ``{field: {"dtype", "shape", "values"}}``."""
-    return {
-        name: {
-            "dtype": np.asarray(array).dtype.name,
-            "shape": list(np.shape(array)),
-            "values": np.ravel(array).tolist(),
-        }
-        for name, array in structures.items()
-    }
-
-
-def structures_from_json(path: Path, stored: Any, fields: list[str]) -> dict[str, np.ndarray]:
-    """The arrays :func:`structures_to_json` wrote, one per field of ``fields``; ExportError if one is missing
-    or malformed."""
-    arrays = {}
-    for name in fields:
-        entry = stored.get(name) if isinstance(stored, dict) else None
-        try:
-            arrays[name] = np.asarray(entry["values"], np.dtype(entry["dtype"])).reshape(entry["shape"])
-        except (TypeError, KeyError, ValueError) as error:
-            raise ExportError(
-                f"{path}: not a complete ONNX policy: no readable structure {name!r} ({error})"
-            ) from error
-    return arrays
 
 
 class OnnxPolicy(PolicyFile):
@@ -120,7 +99,7 @@ def load(path: str | Path) -> OnnxPolicy:
     if stored is None:
         raise ExportError(f"{path}: an ONNX model, but not a swat_jax policy (no {METADATA_KEY!r} metadata)")
     metadata = checked_metadata(path, stored, FORMAT, FORMAT_VERSION)
-    structures = structures_from_json(
-        path, metadata.pop("structures", None), list(metadata["structure_fields"])
+    structures = arrays_from_json(
+        path, metadata.pop("structures", None), list(metadata["structure_fields"]), "structure"
     )
     return OnnxPolicy(path, session, metadata, structures)

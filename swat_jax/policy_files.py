@@ -6,6 +6,11 @@ bodies' structures looked up by name.
 and no jax). Both carry the same metadata (format and version, max limbs L, observation features F, the
 order of the structure inputs, the bodies) and the padded structure arrays of every body of the run's set,
 [K, L, ...] in the order of ``bodies``; both take ``policy(observation [batch, L, F], structure)``.
+
+Both also carry each body's :class:`~swat_jax.envs.controller.BodyInterface` under ``interfaces``, so a
+control loop on MuJoCo C builds the observation, maps the actions to the actuators and steps the body as the
+environment does, without JAX (:meth:`PolicyFile.observe`, :meth:`PolicyFile.controls`,
+:meth:`PolicyFile.simulate`).
 """
 
 from __future__ import annotations
@@ -13,9 +18,14 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # imported where used: reading a file needs neither MuJoCo nor the controller
+    import mujoco
+
+    from swat_jax.envs.controller import BodyInterface
 
 REQUIRED_METADATA = ("max_limbs", "observation_features", "structure_fields", "bodies")
 """Metadata every policy file has besides its format and version."""
@@ -26,6 +36,33 @@ StructureInput = str | Mapping[str, Any] | Any
 
 class ExportError(ValueError):
     """A run that cannot be exported as asked, or a file that is not a usable exported policy."""
+
+
+def arrays_to_json(arrays: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """Arrays by name as JSON-ready values: ``{name: {"dtype", "shape", "values"}}``."""
+    return {
+        name: {
+            "dtype": np.asarray(array).dtype.name,
+            "shape": list(np.shape(array)),
+            "values": np.ravel(array).tolist(),
+        }
+        for name, array in arrays.items()
+    }
+
+
+def arrays_from_json(path: Path, stored: Any, names: Sequence[str], what: str) -> dict[str, np.ndarray]:
+    """The arrays :func:`arrays_to_json` wrote, one per name of ``names``; ExportError naming ``path`` and
+    ``what`` they are if one is missing or malformed."""
+    arrays = {}
+    for name in names:
+        entry = stored.get(name) if isinstance(stored, dict) else None
+        try:
+            arrays[name] = np.asarray(entry["values"], np.dtype(entry["dtype"])).reshape(entry["shape"])
+        except (TypeError, KeyError, ValueError) as error:
+            raise ExportError(
+                f"{path}: not a complete exported policy: no readable {what} {name!r} ({error})"
+            ) from error
+    return arrays
 
 
 def checked_suffix(path: str | Path, suffix: str, kind: str) -> Path:
@@ -90,6 +127,42 @@ class PolicyFile:
             raise ValueError(f"{self.path} has no body {body!r}; it has {', '.join(self.bodies)}")
         row = self.bodies.index(body)
         return {name: self._structures[name][row] for name in self._fields}
+
+    def interface(self, body: str) -> BodyInterface:
+        """The controller constants of ``body`` (:mod:`swat_jax.envs.controller`); ExportError for a file
+        exported before policy files carried them."""
+        from swat_jax.envs.controller import ARRAY_FIELDS, interface_from_arrays
+
+        self.structure(body)
+        stored = self.metadata.get("interfaces", {}).get(body)
+        if stored is None:
+            raise ExportError(f"{self.path}: no controller interface of {body!r}; export the run again")
+        return interface_from_arrays({**stored, **arrays_from_json(self.path, stored, ARRAY_FIELDS, body)})
+
+    def observe(self, body: str, data: mujoco.MjData, target: Any = None) -> np.ndarray:
+        """[1, L, F] float32: ``body``'s observation of MuJoCo's ``data`` (after :meth:`simulate`, or
+        ``mujoco.mj_forward`` at an episode's start), padded to L limbs, ready for ``policy(observation,
+        body)``; ``target`` [2] is the point a 3D body walks to."""
+        from swat_jax.envs.controller import observe
+
+        observation = observe(self.interface(body), data, target)
+        padded = np.zeros((1, self.max_limbs, self.observation_features), np.float32)
+        padded[0, : observation.shape[0]] = observation
+        return padded
+
+    def controls(self, body: str, actions: Any) -> np.ndarray:
+        """[nu] the actuator controls of ``body`` for its ``actions`` ([L] or [L, M], one row of the policy's
+        output), clipped to [-1, 1]: assign them to ``data.ctrl``."""
+        from swat_jax.envs.controller import controls
+
+        return controls(self.interface(body).motor_actions, actions)
+
+    def simulate(self, body: str, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """One environment step of ``body`` on MuJoCo C under ``data.ctrl``, in place: the frame skip's physics
+        steps and the kinematics the next observation reads (:func:`swat_jax.envs.controller.simulate`)."""
+        from swat_jax.envs.controller import simulate
+
+        simulate(self.interface(body), model, data)
 
     def check_observation(self, observation: Any) -> None:
         """ValueError unless ``observation`` is [batch, L, F] with batch >= 1."""

@@ -111,6 +111,73 @@ def test_the_file_runs_without_jax(onnx_file, tmp_path):
     assert result.stdout.strip() == "ok"
 
 
+CONTROL_LOOP = """
+import sys
+import numpy as np
+for name in ("jax", "jaxlib", "flax", "jax2onnx"):
+    sys.modules[name] = None
+import mujoco
+import swat_jax.onnx_policy
+
+policy = swat_jax.onnx_policy.load(sys.argv[1])
+body, start = "hopper_3", np.load(sys.argv[2])
+model = mujoco.MjModel.from_xml_path(sys.argv[3])
+data = mujoco.MjData(model)
+data.qpos[:], data.qvel[:] = start["qpos"], start["qvel"]
+mujoco.mj_forward(model, data)
+observations, controls, positions = [], [], []
+for _ in range(int(sys.argv[4])):
+    observation = policy.observe(body, data)
+    data.ctrl[:] = policy.controls(body, policy(observation, body)[0])
+    policy.simulate(body, model, data)
+    observations.append(observation[0])
+    controls.append(data.ctrl.copy())
+    positions.append(data.qpos.copy())
+np.savez(sys.argv[5], observation=observations, ctrl=controls, qpos=positions)
+"""
+"""The docs' control loop (docs/evaluation-and-export.md), in a process where jax cannot be imported."""
+
+
+def test_a_control_loop_without_jax_steps_as_the_environment(onnx_file, trained_run, tmp_path):
+    """From one start state, the control loop on MuJoCo C with NumPy observations and onnxruntime actions
+    sees the observations, sets the controls and reaches the states of BodyEnv on C physics (with the run's
+    observation switches: the paper preset's stale kinematics and absolute limb x) acting through the same
+    file, step by step."""
+    from swat_jax.envs import BodyEnv
+
+    policy, switches = onnx_policy.load(onnx_file), load_policy(trained_run).config.envs
+    assert switches.stale_kinematics and not switches.torso_relative_x, "the test should cover the quirks"
+    env = BodyEnv(
+        load("hopper_3"),
+        physics="c",
+        torso_relative_x=switches.torso_relative_x,
+        stale_kinematics=switches.stale_kinematics,
+    )
+    state, steps = env.reset(jax.random.key(3)), 25
+    np.savez(tmp_path / "start.npz", qpos=state.data.qpos, qvel=state.data.qvel)
+    step = jax.jit(env.step)
+    expected = {"observation": [], "ctrl": [], "qpos": []}
+    for _ in range(steps):
+        observation = np.asarray(state.observation)[None]
+        state = step(state, policy(observation, "hopper_3")[0])
+        for name, value in zip(expected, (observation[0], state.data.ctrl, state.data.qpos), strict=True):
+            expected[name].append(np.asarray(value))
+    assert not np.any(np.asarray(state.terminated)), "the episode should last the test's steps"
+    arguments = [onnx_file, tmp_path / "start.npz", load("hopper_3").path, steps, tmp_path / "loop.npz"]
+    result = subprocess.run(
+        [sys.executable, "-c", CONTROL_LOOP, *map(str, arguments)],
+        capture_output=True,
+        text=True,
+        env=os.environ,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    loop = np.load(tmp_path / "loop.npz")
+    for name, values in expected.items():
+        np.testing.assert_allclose(loop[name], np.stack(values), atol=2e-5, rtol=1e-5, err_msg=name)
+    assert np.ptp(loop["qpos"][:, 1]) > 0.01, "the body should move"
+
+
 def test_errors_name_the_file_and_the_fix(onnx_file, trained_run, tmp_path, capsys):
     assert export.main([str(trained_run), "--format", "onnx", "-o", str(tmp_path / "a.npz")]) == ERROR_STATUS
     assert "use the suffix .onnx" in capsys.readouterr().err

@@ -31,12 +31,11 @@ import numpy as np
 from flax import struct
 
 from swat_jax.envs.c_physics import EXPLOSION_SPEED, CData, CSimulator, PhysicsShards
+from swat_jax.envs.controller import BodyInterface, body_interface, controls
 from swat_jax.envs.observation import (
     ObservationLayout,
+    data_observation,
     layout_joint_range,
-    limb_observation,
-    limb_observation_3d,
-    observation_layout,
 )
 from swat_jax.envs.physics import ModelFields, Physics, Simulator, differing_fields, resolve_physics
 from swat_jax.envs.quiet_mjx import mjx
@@ -176,9 +175,16 @@ class BodyEnv:
             if physics == "c"
             else Simulator(self.mj_model, physics, worlds)
         )
-        self.layout: ObservationLayout = observation_layout(self.morphology, self.mj_model)
-        self.motor_actions = _motor_actions(self.morphology, self.mj_model.nu)
-        self.gravity = np.asarray(self.mj_model.opt.gravity, np.float32)
+        self.interface: BodyInterface = body_interface(
+            self.morphology,
+            self.mj_model,
+            torso_relative_x=torso_relative_x,
+            stale_kinematics=stale_kinematics,
+        )
+        """The body's constants as a controller outside JAX reads them (:mod:`swat_jax.envs.controller`)."""
+        self.layout: ObservationLayout = self.interface.layout
+        self.motor_actions = self.interface.motor_actions
+        self.gravity = self.interface.gravity
         self.height_limbs = np.array(
             [
                 self.morphology.limb_names.index(name)
@@ -300,7 +306,7 @@ class BodyEnv:
     def simulate(self, data: PhysicsData, action: jax.Array, variant: Variant | None = None) -> PhysicsData:
         """``frame_skip`` physics steps under ``action`` (:attr:`action_shape`); derived quantities not yet
         computed."""
-        data = data.replace(ctrl=jnp.clip(jnp.ravel(action)[self.motor_actions], -1.0, 1.0))
+        data = data.replace(ctrl=controls(self.motor_actions, action, jnp))
         return self.simulator.advance(data, self.morphology.frame_skip, self._row(variant))
 
     def kinematics(self, data: PhysicsData, variant: Variant | None = None) -> PhysicsData:
@@ -376,28 +382,15 @@ class BodyEnv:
         self, data: PhysicsData, variant: Variant | None = None, target: jax.Array | None = None
     ) -> jax.Array:
         """[n, F] float32 (whatever precision the simulation runs in); ``target`` [2] in 3D."""
-        limbs = slice(1, self.num_limbs + 1)
         layout = self.layout if variant is None else self.layout._replace(joint_range=variant.joint_range)
-        if self.task is not None:
-            return limb_observation_3d(
-                layout,
-                data.qpos,
-                data.xpos[limbs],
-                data.cvel[limbs],
-                data.subtree_com[1],
-                data.xaxis,
-                target,
-                self.gravity,
-            ).astype(jnp.float32)
-        return limb_observation(
+        return data_observation(
             layout,
-            data.qpos,
-            data.xpos[limbs],
-            data.xquat[limbs],
-            data.cvel[limbs],
-            data.subtree_com[1],
+            data,
             torso_relative_x=self.torso_relative_x,
-        ).astype(jnp.float32)
+            target=target,
+            gravity=self.gravity,
+            xp=jnp,
+        )
 
     def reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
         """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (the family's reward, morphology/families.py)."""
@@ -467,13 +460,3 @@ def _unstable(data: PhysicsData) -> jax.Array:
     """[] bool: the state is not finite or some joint moves faster than EXPLOSION_SPEED."""
     finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
     return ~finite | jnp.any(jnp.abs(data.qvel) > EXPLOSION_SPEED)
-
-
-def _motor_actions(morphology: Morphology, num_motors: int) -> np.ndarray:
-    """[nu] int32: the entry of the flattened action ([n] or [n, M]) that drives each actuator (inverse of
-    ``limb_motors``; load() has checked that every actuator drives exactly one limb's hinge)."""
-    actions = np.full(num_motors, -1, np.int32)
-    for limb, motors in enumerate(morphology.limb_motors):
-        for slot, motor in enumerate(motors):
-            actions[motor] = limb * morphology.motors_per_limb + slot
-    return actions

@@ -52,6 +52,8 @@ import numpy as np
 from flax import struct
 from jax.sharding import Mesh, PartitionSpec
 
+from swat_jax.envs.controller import derive_kinematics
+
 EXPLOSION_SPEED = 1e3
 """A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
 STATE = (
@@ -382,9 +384,7 @@ def _derive_copy(
 ) -> None:
     """The kinematics of one copy at ``state`` (left unchanged; ``ctrl`` and ``steps`` unused)."""
     mujoco.mj_setState(model, data, state[: model.nq + model.nv], POSITION)
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_comPos(model, data)
-    mujoco.mj_comVel(model, data)
+    derive_kinematics(model, data)
 
 
 def _joined(rounded: np.ndarray, remainder: np.ndarray) -> np.ndarray:

@@ -10,18 +10,22 @@ One row per limb, limbs in pre-order (limb i is MuJoCo body i + 1):
     12+T      joint angle scaled to [0, 1] over the joint range; 0 for the torso
     13+T:15+T joint range ends as (180 + degrees) / 360; 0 for the torso
 
-Works on MJX data under jit and on MuJoCo C data arrays alike (inputs are plain arrays).
+Works on MJX data under jit and on MuJoCo C data arrays alike (inputs are plain arrays). Every function
+takes the array namespace it computes in as ``xp``: NumPy by default, ``jax.numpy`` inside the environment.
+The module imports no jax, so a controller without JAX builds the observation a policy file expects with
+NumPy and MuJoCo alone (:func:`data_observation`, docs/evaluation-and-export.md).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from swat_jax.morphology.types import Morphology
+if TYPE_CHECKING:  # the package of morphology/types.py imports jax, which this module does not need
+    from swat_jax.morphology.types import Morphology
 
 VELOCITY_CLIP = 10.0
 KINEMATIC_FEATURES = 12
@@ -108,38 +112,78 @@ def layout_joint_range(morphology: Morphology) -> np.ndarray:
     return ranges if morphology.family.three_d else ranges[:, 0]
 
 
-def exponential_map(quaternion: jnp.ndarray) -> jnp.ndarray:
+def exponential_map(quaternion: Any, xp: ModuleType = np) -> Any:
     """Rotation vector (axis * angle, angle folded into [0, pi]) of unit quaternions [..., 4] (w, x, y, z)."""
-    q = jnp.where(quaternion[..., :1] < 0, -quaternion, quaternion)
+    q = xp.where(quaternion[..., :1] < 0, -quaternion, quaternion)
     vector = q[..., 1:]
-    sine = jnp.linalg.norm(vector, axis=-1, keepdims=True)
-    angle = 2.0 * jnp.arctan2(sine, q[..., :1])
-    safe = jnp.where(sine > 1e-12, sine, 1.0)
-    return jnp.where(sine > 1e-12, vector / safe * angle, 0.0)
+    sine = xp.linalg.norm(vector, axis=-1, keepdims=True)
+    angle = 2.0 * xp.arctan2(sine, q[..., :1])
+    safe = xp.where(sine > 1e-12, sine, 1.0)
+    return xp.where(sine > 1e-12, vector / safe * angle, 0.0)
 
 
-def frame_velocities(
-    xpos: jnp.ndarray, cvel: jnp.ndarray, root_com: jnp.ndarray
-) -> tuple[jnp.ndarray, jnp.ndarray]:
+def frame_velocities(xpos: Any, cvel: Any, root_com: Any, xp: ModuleType = np) -> tuple[Any, Any]:
     """Linear and angular velocity [n, 3] of each frame origin, world axes, from MuJoCo's com-based cvel.
 
     cvel [n, 6] is (angular, linear) at the root subtree's centre of mass ``root_com`` [3]; moving the
     reference point to the frame origin p gives v_p = v + w x (p - root_com).
     """
     angular, linear = cvel[:, :3], cvel[:, 3:]
-    return linear + jnp.cross(angular, xpos - root_com), angular
+    return linear + xp.cross(angular, xpos - root_com), angular
+
+
+def data_observation(
+    layout: ObservationLayout,
+    data: Any,
+    *,
+    torso_relative_x: bool = True,
+    target: Any = None,
+    gravity: Any = None,
+    xp: ModuleType = np,
+) -> Any:
+    """[n, F] float32: the observation of a body from its simulator state (:func:`limb_observation`, or
+    :func:`limb_observation_3d` for a 3D layout).
+
+    Args:
+        layout: the body's ObservationLayout.
+        data: anything with MuJoCo's ``qpos``, ``xpos``, ``xquat``, ``cvel``, ``subtree_com`` and ``xaxis``
+            fields: a ``mujoco.MjData`` after ``mujoco.mj_forward``, MJX data, C physics data.
+        torso_relative_x: as :func:`limb_observation` (planar bodies).
+        target: [2] the target point (3D bodies).
+        gravity: [3] the model's gravity (3D bodies).
+        xp: the array namespace (NumPy, or ``jax.numpy``).
+    """
+    limbs = slice(1, layout.has_joint.shape[0] + 1)
+    if layout.three_d:
+        arrays = (data.qpos, data.xpos[limbs], data.cvel[limbs], data.subtree_com[1], data.xaxis)
+        observation = limb_observation_3d(layout, *arrays, target, gravity, xp=xp)
+    else:
+        arrays = (data.qpos, data.xpos[limbs], data.xquat[limbs], data.cvel[limbs], data.subtree_com[1])
+        observation = limb_observation(layout, *arrays, torso_relative_x=torso_relative_x, xp=xp)
+    return observation.astype(xp.float32)
+
+
+def _updated(array: Any, index: Any, value: Any) -> Any:
+    """``array`` with ``array[index] = value``, ``array`` left as it is: JAX's functional update for a jax
+    array, a copy for a NumPy one."""
+    if hasattr(array, "at"):
+        return array.at[index].set(value)
+    updated = np.array(array, copy=True)
+    updated[index] = value
+    return updated
 
 
 def limb_observation(
     layout: ObservationLayout,
-    qpos: jnp.ndarray,
-    xpos: jnp.ndarray,
-    xquat: jnp.ndarray,
-    cvel: jnp.ndarray,
-    root_com: jnp.ndarray,
+    qpos: Any,
+    xpos: Any,
+    xquat: Any,
+    cvel: Any,
+    root_com: Any,
     *,
     torso_relative_x: bool = True,
-) -> jnp.ndarray:
+    xp: ModuleType = np,
+) -> Any:
     """Per-limb observation [n, 15 + T] of one body.
 
     Args:
@@ -152,21 +196,26 @@ def limb_observation(
             simulator's memory before it reads anything else: the torso reads x = 0, every other limb
             its absolute world x, and the torso's linear velocity is that of the point (0, y, z) of its
             frame (v + w x (-x, 0, 0)).
+        xp: the array namespace (NumPy, or ``jax.numpy``).
     """
-    qpos, xpos, xquat, cvel, root_com = map(jnp.asarray, (qpos, xpos, xquat, cvel, root_com))
+    qpos, xpos, xquat, cvel, root_com = (xp.asarray(array) for array in (qpos, xpos, xquat, cvel, root_com))
     torso_x = xpos[0, 0]
-    position = xpos.at[:, 0].add(-torso_x) if torso_relative_x else xpos.at[0, 0].set(0.0)
-    linear, angular = frame_velocities(xpos if torso_relative_x else position, cvel, root_com)
-    angle = jnp.degrees(qpos[layout.joint_qpos_address])
+    position = (
+        _updated(xpos, (slice(None), 0), xpos[:, 0] - torso_x)
+        if torso_relative_x
+        else _updated(xpos, (0, 0), 0.0)
+    )
+    linear, angular = frame_velocities(xpos if torso_relative_x else position, cvel, root_com, xp)
+    angle = xp.degrees(qpos[layout.joint_qpos_address])
     low, high = layout.joint_range[:, 0], layout.joint_range[:, 1]
-    scaled = jnp.where(layout.has_joint, (angle - low) / jnp.where(layout.has_joint, high - low, 1.0), 0.0)
-    ends = jnp.where(layout.has_joint[:, None], (180.0 + layout.joint_range) / 360.0, 0.0)
-    return jnp.concatenate(
+    scaled = xp.where(layout.has_joint, (angle - low) / xp.where(layout.has_joint, high - low, 1.0), 0.0)
+    ends = xp.where(layout.has_joint[:, None], (180.0 + layout.joint_range) / 360.0, 0.0)
+    return xp.concatenate(
         [
             position,
-            jnp.clip(linear, -VELOCITY_CLIP, VELOCITY_CLIP),
+            xp.clip(linear, -VELOCITY_CLIP, VELOCITY_CLIP),
             angular,
-            exponential_map(xquat),
+            exponential_map(xquat, xp),
             layout.limb_type_one_hot,
             scaled[:, None],
             ends,
@@ -177,14 +226,15 @@ def limb_observation(
 
 def limb_observation_3d(
     layout: ObservationLayout,
-    qpos: jnp.ndarray,
-    xpos: jnp.ndarray,
-    cvel: jnp.ndarray,
-    root_com: jnp.ndarray,
-    joint_axes: jnp.ndarray,
-    target: jnp.ndarray,
-    gravity: np.ndarray,
-) -> jnp.ndarray:
+    qpos: Any,
+    xpos: Any,
+    cvel: Any,
+    root_com: Any,
+    joint_axes: Any,
+    target: Any,
+    gravity: Any,
+    xp: ModuleType = np,
+) -> Any:
     """Per-limb observation [n, 37 + T] of one 3D body (SGRL's, 41 values for T = 4):
 
         0:3    world position of the limb's frame origin minus the torso's
@@ -207,20 +257,21 @@ def limb_observation_3d(
         joint_axes: [njnt, 3] world axes of every joint (MuJoCo's ``xaxis``).
         target: [2] the target point (x, y).
         gravity: [3] the model's gravity.
+        xp: the array namespace (NumPy, or ``jax.numpy``).
     """
-    qpos, xpos, cvel, root_com, joint_axes, target = map(
-        jnp.asarray, (qpos, xpos, cvel, root_com, joint_axes, target)
+    qpos, xpos, cvel, root_com, joint_axes, target = (
+        xp.asarray(array) for array in (qpos, xpos, cvel, root_com, joint_axes, target)
     )
     n = xpos.shape[0]
-    linear, angular = frame_velocities(xpos, cvel, root_com)
-    direction = heading_to_target(xpos[0, :2], target)
-    axes, angle, joint = hinge_slots_3d(layout, qpos, joint_axes)
-    return jnp.concatenate(
+    linear, angular = frame_velocities(xpos, cvel, root_com, xp)
+    direction = heading_to_target(xpos[0, :2], target, xp)
+    axes, angle, joint = hinge_slots_3d(layout, qpos, joint_axes, xp)
+    return xp.concatenate(
         [
             xpos - xpos[0],
-            jnp.broadcast_to(jnp.asarray(gravity, xpos.dtype), (n, 3)),
-            jnp.broadcast_to(jnp.concatenate([direction, jnp.zeros(1, xpos.dtype)]), (n, 3)),
-            jnp.clip(linear, -VELOCITY_CLIP, VELOCITY_CLIP),
+            xp.broadcast_to(xp.asarray(gravity, xpos.dtype), (n, 3)),
+            xp.broadcast_to(xp.concatenate([direction, xp.zeros(1, xpos.dtype)]), (n, 3)),
+            xp.clip(linear, -VELOCITY_CLIP, VELOCITY_CLIP),
             angular,
             axes.reshape(n, -1),
             angle,
@@ -232,25 +283,25 @@ def limb_observation_3d(
     )
 
 
-def heading_to_target(torso: jnp.ndarray, target: jnp.ndarray) -> jnp.ndarray:
+def heading_to_target(torso: Any, target: Any, xp: ModuleType = np) -> Any:
     """[2] the unit direction in the floor plane from the torso's (x, y) ``torso`` [2] to ``target`` [2]; 0
     where the torso stands on it."""
     direction = target - torso
-    return direction / jnp.maximum(jnp.linalg.norm(direction), DIRECTION_EPSILON)
+    return direction / xp.maximum(xp.linalg.norm(direction), DIRECTION_EPSILON)
 
 
 def hinge_slots_3d(
-    layout: ObservationLayout, qpos: jnp.ndarray, joint_axes: jnp.ndarray
-) -> tuple[jnp.ndarray, jnp.ndarray, jnp.ndarray]:
+    layout: ObservationLayout, qpos: Any, joint_axes: Any, xp: ModuleType = np
+) -> tuple[Any, Any, Any]:
     """What a 3D limb observes of its M hinge slots (:func:`limb_observation_3d`): the world axes [n, M, 3]
     (0 where a slot has no hinge), the angles [n, M] in radians (0 where none), and per slot the angle
     scaled to [0, 1] over its range and the range ends as (180 + degrees) / 360 [n, M, 3] (ABSENT_JOINT
     where none)."""
     has = layout.has_joint
-    angle = jnp.where(has, qpos[layout.joint_qpos_address], 0.0)
+    angle = xp.where(has, qpos[layout.joint_qpos_address], 0.0)
     low, high = layout.joint_range[..., 0], layout.joint_range[..., 1]
-    scaled = (jnp.degrees(angle) - low) / jnp.where(has, high - low, 1.0)
-    joint = jnp.stack([scaled, (180.0 + low) / 360.0, (180.0 + high) / 360.0], axis=-1)
-    joint = jnp.where(has[..., None], joint, ABSENT_JOINT)
-    axes = jnp.where(has[..., None], joint_axes[layout.joint_id], 0.0)
+    scaled = (xp.degrees(angle) - low) / xp.where(has, high - low, 1.0)
+    joint = xp.stack([scaled, (180.0 + low) / 360.0, (180.0 + high) / 360.0], axis=-1)
+    joint = xp.where(has[..., None], joint, ABSENT_JOINT)
+    axes = xp.where(has[..., None], joint_axes[layout.joint_id], 0.0)
     return axes, angle, joint
