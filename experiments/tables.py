@@ -21,6 +21,8 @@ The tables (:data:`TABLES`):
   own, and the ``fast`` preset's final return (:data:`TIME_TO_RETURN` names each row's folders).
 - ``time-to-return-runs``: the same rows with each run's wall clock.
 - ``summary``: one row per set and budget, both comparisons side by side.
+- ``specialists``: Brax SAC specialists, one per body, beside the ``fast`` preset's one policy for the
+  set, body by body (experiments/results/specialists, :func:`experiments.specialists.table_lines`).
 
 Every "±" is the standard error over seeds. Machine seconds per seed to R are the mean over all of a
 side's seeds (experiments/time_to_return.py), and a ratio divides the ``fast`` preset's by the original's
@@ -41,6 +43,7 @@ from experiments.against_original import finished_runs, pooled_test, side_curves
 from experiments.original.returns import SIGNIFICANCE, Final, difference_interval, final_returns, welch
 from experiments.original.runs import ORIGINAL, OURS, SETTINGS, Settings
 from experiments.paper import read_timings
+from experiments.specialists import read_results, table_lines
 from experiments.time_to_return import (
     Curve,
     candidate_curve,
@@ -298,16 +301,27 @@ def summary_table() -> list[str]:
     return [*lines, pooled_row(5)]
 
 
+SPECIALISTS = RESULTS / "specialists"
+SPECIALIST_SETS = ("hopper", "walker")
+
+
+def specialists_table() -> list[str]:
+    """The ``specialists`` table: per body of Hopper++ and Walker++, the ``fast`` preset's one policy beside
+    Brax SAC specialists at two budgets, and each side's training wall clock."""
+    return table_lines([read_results(ROOT / SPECIALISTS, env, "sac") for env in SPECIALIST_SETS])
+
+
 TABLES: dict[str, Callable[[], list[str]]] = {
     "parity": parity_table,
     "time-to-return": time_to_return_table,
     "time-to-return-runs": time_to_return_runs_table,
     "summary": summary_table,
+    "specialists": specialists_table,
 }
 """Each generated table by name: the function that writes its lines from the results."""
 REQUIRED: dict[str, tuple[str, ...]] = {
     "README.md": ("parity", "time-to-return"),
-    "BENCHMARKS.md": ("summary", "time-to-return-runs", "parity"),
+    "BENCHMARKS.md": ("summary", "time-to-return-runs", "parity", "specialists"),
     "training.md": ("time-to-return",),
     "fidelity.md": ("parity",),
 }
