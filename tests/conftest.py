@@ -38,7 +38,16 @@ enable_caches()
 
 WORKER_GROUPS = {
     **dict.fromkeys(
-        ("test_train", "test_eval", "test_cli_output", "test_export", "test_plot", "test_run_errors"),
+        (
+            "test_train",
+            "test_eval",
+            "test_cli_output",
+            "test_export",
+            "test_onnx_export",
+            "test_plot",
+            "test_run_errors",
+            "test_specialists",
+        ),
         "tiny runs",
     ),
     "test_sharding": "sharded twins",

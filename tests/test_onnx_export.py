@@ -16,9 +16,6 @@ from swat_jax.morphology import StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
 from swat_jax.runs.trained import load_policy
 
-pytestmark = pytest.mark.xdist_group("onnx")
-"""One worker converts every model: jax2onnx's first conversion in a process loads its plugins (seconds)."""
-
 FEATURES = 17
 """Observation values per limb of the walker family."""
 WALKERS = get_set("walker").train

@@ -18,9 +18,6 @@ from mujoco_playground import wrapper
 from swat_jax.adapters.playground import STATE_KEY, PlaygroundBody, restore_device_put_replicated
 from swat_jax.envs import BodyEnv
 
-pytestmark = pytest.mark.xdist_group("brax")
-"""One worker: Brax's trainers compile their programs once per process."""
-
 
 @pytest.mark.parametrize(
     ("name", "switches"),

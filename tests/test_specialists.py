@@ -10,9 +10,6 @@ import pytest
 
 from experiments import specialists
 
-pytestmark = pytest.mark.xdist_group("brax")
-"""With tests/test_playground.py: Brax's import and its programs once per worker."""
-
 
 @pytest.mark.slow
 def test_specialists_train_report_and_resume(trained_run, hopper_folder, tmp_path):
