@@ -105,6 +105,7 @@ class PolicyFile:
         """The file's metadata (:mod:`swat_jax.policy_files`)."""
         self._fields: list[str] = list(metadata["structure_fields"])
         self._structures = dict(structures)
+        self._interfaces: dict[str, BodyInterface] = {}
 
     @property
     def max_limbs(self) -> int:
@@ -129,15 +130,19 @@ class PolicyFile:
         return {name: self._structures[name][row] for name in self._fields}
 
     def interface(self, body: str) -> BodyInterface:
-        """The controller constants of ``body`` (:mod:`swat_jax.envs.controller`); ExportError for a file
-        exported before policy files carried them."""
+        """The controller constants of ``body`` (:mod:`swat_jax.envs.controller`), decoded from the metadata
+        once per body (a control loop asks for them at every step); ExportError for a file exported before
+        policy files carried them."""
         from swat_jax.envs.controller import ARRAY_FIELDS, interface_from_arrays
 
-        self.structure(body)
-        stored = self.metadata.get("interfaces", {}).get(body)
-        if stored is None:
-            raise ExportError(f"{self.path}: no controller interface of {body!r}; export the run again")
-        return interface_from_arrays({**stored, **arrays_from_json(self.path, stored, ARRAY_FIELDS, body)})
+        if body not in self._interfaces:
+            self.structure(body)
+            stored = self.metadata.get("interfaces", {}).get(body)
+            if stored is None:
+                raise ExportError(f"{self.path}: no controller interface of {body!r}; export the run again")
+            arrays = arrays_from_json(self.path, stored, ARRAY_FIELDS, body)
+            self._interfaces[body] = interface_from_arrays({**stored, **arrays})
+        return self._interfaces[body]
 
     def observe(self, body: str, data: mujoco.MjData, target: Any = None) -> np.ndarray:
         """[1, L, F] float32: ``body``'s observation of MuJoCo's ``data`` (after :meth:`simulate`, or

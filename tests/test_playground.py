@@ -55,53 +55,54 @@ def finite(metrics: dict) -> bool:
     return all(np.all(np.isfinite(np.asarray(value))) for value in metrics.values())
 
 
-def test_brax_ppo_trains_on_a_body():
-    """Brax's PPO, unmodified, through Playground's wrapper: a short run on hopper_3 (MuJoCo C) ends with
-    finite metrics and a policy that jits."""
-    restore_device_put_replicated()
-    env = PlaygroundBody("hopper_3", physics="c")
-    make_policy, params, metrics = ppo.train(
-        environment=env,
-        num_timesteps=800,
-        episode_length=50,
-        num_envs=4,
-        batch_size=4,
-        num_minibatches=2,
-        unroll_length=10,
-        num_updates_per_batch=1,
-        num_evals=2,
-        num_eval_envs=2,
-        wrap_env_fn=wrapper.wrap_for_brax_training,
-        network_factory=functools.partial(
-            ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(16,), value_hidden_layer_sizes=(16,)
+BRAX_RUNS = {
+    "ppo": (
+        ppo.train,
+        dict(
+            num_timesteps=800,
+            num_envs=4,
+            batch_size=4,
+            num_minibatches=2,
+            unroll_length=10,
+            num_updates_per_batch=1,
+            network_factory=functools.partial(
+                ppo_networks.make_ppo_networks,
+                policy_hidden_layer_sizes=(16,),
+                value_hidden_layer_sizes=(16,),
+            ),
         ),
-        seed=0,
-    )
-    assert metrics and finite(metrics) and "eval/episode_reward" in metrics
-    policy = jax.jit(make_policy(params, deterministic=True))
-    actions, _ = policy(jnp.zeros((1, env.observation_size)), jax.random.key(0))
-    assert actions.shape == (1, env.action_size) and np.all(np.abs(actions) <= 1)
+    ),
+    "sac": (
+        sac.train,
+        dict(
+            num_timesteps=400,
+            num_envs=4,
+            batch_size=16,
+            min_replay_size=64,
+            max_replay_size=400,
+            grad_updates_per_step=1,
+            network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(16,)),
+        ),
+    ),
+}
+"""Brax's trainers and the settings of a run of seconds each."""
 
 
-def test_brax_sac_trains_on_a_body():
-    """Brax's SAC, unmodified, through Playground's wrapper: a short run on hopper_3 (MuJoCo C) ends with
-    finite metrics and a policy that jits."""
+@pytest.mark.parametrize("trainer", BRAX_RUNS)
+def test_brax_trains_on_a_body(trainer):
+    """Brax's PPO and SAC, unmodified, through Playground's wrapper: a short run on hopper_3 (MuJoCo C) ends
+    with finite metrics and a policy that jits."""
     restore_device_put_replicated()
     env = PlaygroundBody("hopper_3", physics="c")
-    make_policy, params, metrics = sac.train(
+    train, settings = BRAX_RUNS[trainer]
+    make_policy, params, metrics = train(
         environment=env,
-        num_timesteps=400,
         episode_length=50,
-        num_envs=4,
-        num_eval_envs=2,
-        batch_size=16,
-        min_replay_size=64,
-        max_replay_size=400,
-        grad_updates_per_step=1,
         num_evals=2,
+        num_eval_envs=2,
         wrap_env_fn=wrapper.wrap_for_brax_training,
-        network_factory=functools.partial(sac_networks.make_sac_networks, hidden_layer_sizes=(16,)),
         seed=0,
+        **settings,
     )
     assert metrics and finite(metrics) and "eval/episode_reward" in metrics
     policy = jax.jit(make_policy(params, deterministic=True))

@@ -182,9 +182,6 @@ class BodyEnv:
             stale_kinematics=stale_kinematics,
         )
         """The body's constants as a controller outside JAX reads them (:mod:`swat_jax.envs.controller`)."""
-        self.layout: ObservationLayout = self.interface.layout
-        self.motor_actions = self.interface.motor_actions
-        self.gravity = self.interface.gravity
         self.height_limbs = np.array(
             [
                 self.morphology.limb_names.index(name)
@@ -201,6 +198,21 @@ class BodyEnv:
             ],
             np.int32,
         )
+
+    @property
+    def layout(self) -> ObservationLayout:
+        """What the observation reads besides the state (:attr:`interface`'s)."""
+        return self.interface.layout
+
+    @property
+    def motor_actions(self) -> np.ndarray:
+        """[nu] int32: the entry of the flattened action that drives each actuator (:attr:`interface`'s)."""
+        return self.interface.motor_actions
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """[3] float32, the model's gravity (:attr:`interface`'s)."""
+        return self.interface.gravity
 
     @property
     def num_limbs(self) -> int:
