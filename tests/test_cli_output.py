@@ -99,6 +99,25 @@ def test_help_explains_every_field_of_the_command(help_outputs, argv):
         assert first_words in help_text, f"{name}: {first_words!r} is not in --help"
 
 
+MJX_PROBE = """
+import sys
+import swat_jax.eval, swat_jax.export, swat_jax.plot, swat_jax.train
+from swat_jax.envs import BodyEnv
+BodyEnv("hopper_3", physics="c")
+print("mujoco.mjx" in sys.modules)
+from swat_jax.envs.quiet_mjx import mjx
+print(type(mjx.put_model(BodyEnv("hopper_3").mj_model)).__name__, "mujoco.mjx" in sys.modules)
+"""
+
+
+def test_the_commands_import_mjx_only_when_something_reads_it():
+    """MJX's import (about 1.5 s with MuJoCo Warp's kernels) waits for its first use: the commands and a
+    body on C physics start without it; the first attribute read imports it."""
+    probe = subprocess.run([sys.executable, "-c", MJX_PROBE], capture_output=True, text=True, check=False)
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.split("\n") == ["False", "Model True", ""]
+
+
 def field_docstrings(command: type) -> list[str]:
     """The docstring under each field of ``command`` and of the dataclasses it extends."""
     docstrings = []

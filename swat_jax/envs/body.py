@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Union
 
 import jax
 import jax.numpy as jnp
@@ -55,7 +56,7 @@ from swat_jax.morphology.types import Morphology
 
 __all__ = ["BOUNDED_STATE_LIMIT", "EXPLOSION_SPEED", "BodyEnv", "EnvState", "PhysicsData", "Variant"]
 
-PhysicsData = mjx.Data | CData
+PhysicsData = Union["mjx.Data", CData]
 """A simulator state: MJX's on physics "jax" and "warp", :class:`~swat_jax.envs.c_physics.CData` on "c"
 (the same field names for what the environment reads)."""
 
