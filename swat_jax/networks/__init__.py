@@ -1,8 +1,10 @@
-"""Per-limb policies in Flax: SWAT, AMORPHEUS and SMP actors and twin critics (paper sections 4.1-4.3)."""
+"""Per-limb policies in Flax: SWAT, AMORPHEUS and SMP actors and twin critics (paper sections 4.1-4.3), and
+SGRL's SET for 3D bodies (Chen et al. 2023)."""
 
 from swat_jax.networks.config import ARCHITECTURES, NAMED_VARIANTS, NetworkConfig, network_config
 from swat_jax.networks.policies import (
     Actor,
+    ArchitectureMismatch,
     Critic,
     LimbNetwork,
     Params,
@@ -17,6 +19,7 @@ __all__ = [
     "ARCHITECTURES",
     "NAMED_VARIANTS",
     "Actor",
+    "ArchitectureMismatch",
     "Critic",
     "LimbNetwork",
     "NetworkConfig",

@@ -3,8 +3,11 @@
 ``network_config("swat")`` is the paper's model (Table 1, sections 4.1-4.3); the ablations of
 section 5.4 (Figure 6) each change one structural-embedding field, and AMORPHEUS (Kurin et al.
 2021) is the same transformer with neither embedding. SMP (Huang et al. 2020) is the
-message-passing baseline. :class:`NetworkSizes` is what a training run sets of them (the ``--network.*``
-flags), which :meth:`swat_jax.runs.config.TrainConfig.network_config` turns into a NetworkConfig.
+message-passing baseline. SET (Chen et al. 2023, SGRL) is the subequivariant transformer for 3D bodies
+(:mod:`swat_jax.networks.subequivariant`); SGRL's 3D configuration has SWAT's sizes (width 128, 2 heads,
+3 layers, feed-forward 256, the same traversals and relations), so it shares these defaults.
+:class:`NetworkSizes` is what a training run sets of them (the ``--network.*`` flags), which
+:meth:`swat_jax.runs.config.TrainConfig.network_config` turns into a NetworkConfig.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from swat_jax.errors import ConfigError, is_positive_whole, require_positive
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES
 from swat_jax.networks.initialisation import INITIALISATIONS, Initialisation
 
-ARCHITECTURES = ("swat", "amorpheus", "smp")
+ARCHITECTURES = ("swat", "amorpheus", "smp", "set")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,7 +28,8 @@ class NetworkConfig:
 
     architecture: str = "swat"
     """"swat" (transformer with structural embeddings), "amorpheus" (the same transformer with
-    none) or "smp" (shared modular policies, two-pass message passing)."""
+    none), "smp" (shared modular policies, two-pass message passing) or "set" (SGRL's subequivariant
+    transformer, 3D bodies only)."""
     width: int = 128
     """Transformer model width d_v: the encoded limb token (Table 1, embedding size)."""
     heads: int = 2
@@ -62,7 +66,8 @@ class NetworkConfig:
     """SMP: child message slots per limb (4 is the most children of any benchmark limb)."""
     initialisation: Initialisation = "flax"
     """Initial weights: "flax" (Flax's defaults) or "original" (the original PyTorch code's, every
-    transformer layer starting as a copy of the first; :mod:`swat_jax.networks.initialisation`)."""
+    transformer layer starting as a copy of the first; :mod:`swat_jax.networks.initialisation`; for SET,
+    SGRL's: PyTorch's default for every linear map, its two input encoders U(+-0.1))."""
     observation_normalisation: bool = False
     """Standardise every limb feature by running statistics of the observations seen in training, one set
     over all real limbs (FastTD3's normaliser), in the actor and the critic; the statistics are variables
@@ -89,6 +94,16 @@ class NetworkConfig:
             raise ValueError(f"initialisation must be one of {INITIALISATIONS}, got {self.initialisation!r}")
         if self.width % self.heads != 0:
             raise ValueError(f"width ({self.width}) must be divisible by heads ({self.heads})")
+        if self.architecture == "set" and self.observation_normalisation:
+            raise ValueError(
+                "SET reads the observation's 3-vectors as they are: observation normalisation, which standardises "
+                "each value on its own, would break its symmetry about gravity; turn it off for SET"
+            )
+        if self.architecture == "set" and self.width < 2 * self.heads:
+            raise ValueError(
+                f"SET needs a width of at least 2 per head (each head's vector values hold 2 * width / heads - 2 "
+                f"channels and the 2 directions); got width {self.width} with {self.heads} heads"
+            )
         for name in ("decoder_hidden", "up_hidden", "down_hidden"):
             sizes = _as_tuple(name, getattr(self, name))
             for size in sizes:
@@ -139,6 +154,7 @@ NAMED_VARIANTS: dict[str, dict[str, Any]] = {
     "swat_no_pe": {"traversals": ()},
     "swat_no_re": {"relations": ()},
     "swat_no_pe_re": {"traversals": (), "relations": ()},
+    "set": {"architecture": "set"},
 }
 """The fields each named variant changes from the defaults (the paper's SWAT)."""
 
@@ -148,7 +164,7 @@ def network_config(name: str, **overrides: Any) -> NetworkConfig:
 
     Args:
         name: one of :data:`NAMED_VARIANTS` ("swat", "amorpheus", "smp", "swat_no_pe",
-            "swat_no_re", "swat_no_pe_re").
+            "swat_no_re", "swat_no_pe_re", "set").
         **overrides: :class:`NetworkConfig` fields, e.g. ``width=16``.
 
     Raises:

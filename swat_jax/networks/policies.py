@@ -29,6 +29,7 @@ from swat_jax.networks.config import NetworkConfig
 from swat_jax.networks.initialisation import copy_first_layer
 from swat_jax.networks.observation_stats import NORMALISER, STATS, ObservationNormaliser
 from swat_jax.networks.smp import SharedModularCritic, SharedModularPolicy, most_children
+from swat_jax.networks.subequivariant import MOTORS, SubequivariantTransformer
 from swat_jax.networks.transformer import StructureAwareTransformer
 
 Params = Any
@@ -41,6 +42,8 @@ def limb_network(config: NetworkConfig, name: str, outputs: int = 1) -> nn.Modul
     (``outputs`` > 1: [batch, limbs, outputs])."""
     if config.architecture == "smp":
         return SharedModularPolicy(config, outputs, name=name)
+    if config.architecture == "set":
+        return SubequivariantTransformer(config, outputs, name=name)
     return StructureAwareTransformer(config, outputs, name=name)
 
 
@@ -84,6 +87,10 @@ class Actor(nn.Module):
         """limb_obs [batch, limbs, features], structure: one body's slice -> actions [batch, limbs]
         (M = 1) or [batch, limbs, M]; with ``squash`` False the outputs before the tanh (the actions are
         their tanh). 0 at padded limbs and motors."""
+        if self.config.architecture == "set" and motors_per_limb(structure) != MOTORS:
+            raise ValueError(
+                f"SET acts on 3D bodies ({MOTORS} motors a limb), not {motors_per_limb(structure)}"
+            )
         limb_obs = normalised(self.config, limb_obs, structure)
         outputs = limb_network(self.config, "policy", motors_per_limb(structure))(limb_obs, structure)
         return jnp.where(action_mask(structure), jnp.tanh(outputs) if squash else outputs, 0.0)
@@ -93,17 +100,19 @@ class Critic(nn.Module):
     """Twin Q networks; each limb's input is its observation concatenated with its action.
 
     Transformers: two independent networks, one Q value per limb, each limb with its own TD target
-    (:mod:`swat_jax.td3.learner`), or with ``atoms`` the logits of a distribution of each limb's return
-    over that many atoms (C51, Bellemare et al. 2017, as FastTD3's critic). SMP: one message passing with
-    two heads, whose per-limb outputs sum to the body's Q (:class:`~swat_jax.networks.smp.SharedModularCritic`).
+    (:mod:`swat_jax.td3.learner`), or with ``atoms`` (SWAT and AMORPHEUS) the logits of a distribution of
+    each limb's return over that many atoms (C51, Bellemare et al. 2017, as FastTD3's critic). SET: the same
+    with one invariant Q value per limb (:mod:`swat_jax.networks.subequivariant`). SMP: one message passing
+    with two heads, whose per-limb outputs sum to the body's Q
+    (:class:`~swat_jax.networks.smp.SharedModularCritic`).
     """
 
     config: NetworkConfig
     atoms: int = 0
-    """0: one Q value per limb; N >= 2: N logits per limb (transformers only)."""
+    """0: one Q value per limb; N >= 2: N logits per limb (SWAT and AMORPHEUS only)."""
 
     def __post_init__(self) -> None:
-        if self.atoms and (self.atoms < 2 or self.config.architecture == "smp"):
+        if self.atoms and (self.atoms < 2 or self.config.architecture in ("smp", "set")):
             raise ValueError(
                 f"a distributional critic needs 2 or more atoms and a transformer (swat or amorpheus); got "
                 f"{self.atoms} atoms with {self.config.architecture}"
@@ -192,6 +201,11 @@ def param_count(params: Params) -> int:
     return sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params))
 
 
+class ArchitectureMismatch(ValueError):
+    """Bodies a network's architecture cannot take at any size (SET and a planar body); the message says
+    what to use instead."""
+
+
 class StructureMismatch(ValueError):
     """Bodies a network cannot take; ``setting`` (a NetworkConfig field) would need to be at least ``needed``."""
 
@@ -209,9 +223,16 @@ def check_structures(
     Inside jit an out-of-range traversal position or an extra child cannot raise: traversal
     positions must be below ``max_traversal_positions`` (transformers: one position per limb, so
     a body needs as many as it has limbs) and no limb may have more than ``max_children``
-    children (SMP). ``names`` (one per body of the batch) name the body in the message.
+    children (SMP). ``names`` (one per body of the batch) name the body in the message. SET takes 3D bodies
+    only (its geometric stream reads the 3-vectors of their observation): ArchitectureMismatch otherwise.
     """
     names = names or [f"body {index}" for index in range(structures.limb_mask.shape[0])]
+    if config.architecture == "set" and motors_per_limb(structures) != MOTORS:
+        raise ArchitectureMismatch(
+            f"SET (--algo set) is 3D-only and {names[0]} is a planar body (one motor a limb, no 3-vectors in "
+            "its observation); train SET on a 3D-SGRL set (3d_hopper, 3d_walker, 3d_humanoid, 3d_cheetah, "
+            "3d_whh, 3d_cwhh) or use --algo swat, amorpheus or smp for planar bodies"
+        )
     if config.architecture == "smp":
         children = [most_children(parents) for parents in np.asarray(structures.parents)]
         worst = int(np.argmax(children))

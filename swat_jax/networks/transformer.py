@@ -75,6 +75,17 @@ class RelationalEmbedding(nn.Module):
         return jnp.moveaxis(relation_bias, -1, 0)
 
 
+def masked_attention_weights(
+    logits: jax.Array, limb_mask: jax.Array, relation_bias: jax.Array | None
+) -> jax.Array:
+    """Softmax over keys of ``logits`` [batch, heads, limbs, limbs] plus the relational bias [heads, limbs,
+    limbs] (eq. 5) when given, padded limbs (``limb_mask`` [limbs] False) removed as keys: weight 0."""
+    if relation_bias is not None:
+        logits = logits + relation_bias
+    logits = jnp.where(limb_mask, logits, jnp.finfo(logits.dtype).min)
+    return jax.nn.softmax(logits, axis=-1)
+
+
 class MaskedMultiHeadAttention(nn.Module):
     """Multi-head self-attention over limbs with an additive per-head bias (eq. 5) and a key mask.
 
@@ -100,10 +111,7 @@ class MaskedMultiHeadAttention(nn.Module):
 
         queries, keys, values = project("query"), project("key", use_bias=False), project("value")
         logits = jnp.einsum("bqhd,bkhd->bhqk", queries, keys) / math.sqrt(head_width)
-        if relation_bias is not None:
-            logits = logits + relation_bias
-        logits = jnp.where(limb_mask, logits, jnp.finfo(logits.dtype).min)
-        attention_weights = jax.nn.softmax(logits, axis=-1)
+        attention_weights = masked_attention_weights(logits, limb_mask, relation_bias)
         self.sow("intermediates", "attention_weights", attention_weights)
         attended = jnp.einsum("bhqk,bkhd->bqhd", attention_weights, values)
         attended = attended.reshape(tokens.shape)

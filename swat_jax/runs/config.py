@@ -48,7 +48,7 @@ from swat_jax.td3.iteration import IterationConfig
 from swat_jax.td3.learner import TD3Config
 from swat_jax.td3.schedules import SCHEDULES
 
-Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re"]
+Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re", "set"]
 Preset = Literal["paper", "intended", "fast"]
 Split = Literal["train", "test", "all"]
 
@@ -86,7 +86,7 @@ class TrainConfig:
     init_seed_index: int = host_only(0)
     """With --init-from: which seed of that run (an index into its seeds) every seed of this run starts from."""
     algo: Algorithm = "swat"
-    """Network: swat, amorpheus, smp, or a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re)."""
+    """Network: swat, amorpheus, smp, a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re), or set (SGRL's subequivariant transformer, 3D sets only)."""
     preset: Preset = host_only("paper")
     """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, per-body reward scaling, target pessimism 0.5, an action penalty 0.003, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
     seed: int = host_only(0)
@@ -227,10 +227,11 @@ class TrainConfig:
                 "--td3.reward-scaling scales each body's rewards in the all-task update's batch from every body; "
                 "add --iteration.schedule all_tasks --iteration.no-rounds or drop --td3.reward-scaling"
             )
-        if self.td3.atoms and (self.td3.atoms < 2 or self.algo == "smp"):
+        if self.td3.atoms and (self.td3.atoms < 2 or self.algo in ("smp", "set")):
             raise ConfigError(
-                f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with a transformer (SMP's critic sums "
-                f"its limbs' values); got {self.td3.atoms} with --algo {self.algo}"
+                f"--td3.atoms must be 0 (a Q value per limb) or 2 or more, with SWAT or AMORPHEUS (SMP's critic "
+                f"sums its limbs' values, SET's is one invariant value a limb); got {self.td3.atoms} with --algo "
+                f"{self.algo}"
             )
         if not (self.td3.action_penalty >= 0.0 and self.td3.action_penalty_from >= 0.0):
             raise ConfigError(

@@ -21,6 +21,7 @@ from swat_jax.envs.physics import resolve_physics
 from swat_jax.morphology import Morphology, limb_buckets
 from swat_jax.morphology.variants import Variation, write_variants
 from swat_jax.networks import (
+    ArchitectureMismatch,
     Params,
     StructureMismatch,
     TaskSet,
@@ -71,6 +72,8 @@ class Experiment:
             raise ConfigError(
                 f"{config.algo} cannot take the bodies of {config.env}: {error}; {config.structure_fix(error)}"
             ) from error
+        except ArchitectureMismatch as error:
+            raise ConfigError(f"{config.algo} cannot take the bodies of {config.env}: {error}") from error
         devices = jax.devices() if devices is None else devices
         layout = placement(config.seeds, len(tasks.bodies), config.envs.copies, devices)
         env = make_env(
