@@ -129,16 +129,18 @@ def compile_cached(
         recipe: everything else the traced function depends on, as values with a deterministic ``repr``
             (frozen configs, tuples) or bytes: with this package's source and the settings, it must determine
             the program. None for programs that cannot be loaded in another process (calls into kernels
-            registered by this one, such as MuJoCo Warp's): compiled every time, never saved.
+            registered by this one, such as MuJoCo Warp's, or C physics' callbacks): compiled every time,
+            never saved, and lowered with JAX's in-memory caches as they are (no cache could meet a fresh
+            lowering of it, and clearing them would make the process trace its other functions again).
 
     Runs over several hosts compile every time too: each host's program is its part of one program.
     """
     import jax
 
     directory = cache_directory() if _programs_enabled else None
-    if directory is None:  # no cache to meet: JAX's in-memory caches are left as they are
+    if directory is None or recipe is None:  # no cache to meet: JAX's in-memory caches are left as they are
         return build().lower(*args).compile()
-    if recipe is None or jax.process_count() > 1:
+    if jax.process_count() > 1:
         return lower_built_afresh(build, *args).compile()
     limit = program_cache_limit()
     path = directory / PROGRAMS / f"{name}-{_program_key(name, recipe, args)}"

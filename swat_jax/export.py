@@ -122,8 +122,8 @@ def onnx_actor(actor: LimbNetwork, params: Params, structure: StructureBatch) ->
     fields under their StructureBatch names, output ``actions`` [batch, L] ([batch, L, M] in 3D).
 
     Args:
-        actor: the actor (``make_actor_critic(...)[0]``): SWAT or AMORPHEUS; SMP's scan over limbs does not
-            convert (ExportError).
+        actor: the actor (``make_actor_critic(...)[0]``): SWAT, AMORPHEUS or SET; SMP's scan over limbs does
+            not convert (ExportError).
         params: its parameters.
         structure: one body's StructureBatch slice padded to L limbs; only shapes and dtypes are used.
     """

@@ -152,10 +152,13 @@ def test_programs_that_call_into_this_process_are_not_saved(program_cache):
 
     x = jnp.ones(3)
     np.testing.assert_allclose(compile_cached("callback", build, (x,), ("recipe",))(x), np.sin(1.0))
+    traced = jax.jit(lambda x: x + 1)
+    traced(x)
     probe = Probe()
     compile_cached("probe", probe.build, (jnp.ones((2, 2)),), None)
     assert probe.traces == 1
     assert not program_cache.exists() or not any(program_cache.iterdir())
+    assert traced._cache_size() == 1, "a program no cache holds is lowered without clearing JAX's caches"
 
 
 def test_the_program_cache_is_off_with_the_compilation_cache(program_cache, monkeypatch):

@@ -38,21 +38,25 @@ steps), under the 520 steps measured."""
 
 
 def random_policy_returns(env: BodyEnv, episodes: int, seed: int) -> jax.Array:
-    """[episodes] returns of uniform random actions, each episode until its first termination or time limit."""
+    """[episodes] returns of uniform random actions, each episode until its first termination or time limit
+    (the loop stops when every episode has ended: random hoppers fall within a few hundred steps)."""
 
-    def step(carry, key):
-        states, returns, finished = carry
-        actions = jax.random.uniform(key, (episodes, env.num_limbs), minval=-1.0, maxval=1.0)
+    def step(carry):
+        states, returns, finished, action_keys, count = carry
+        actions = jax.random.uniform(action_keys[count], (episodes, env.num_limbs), minval=-1.0, maxval=1.0)
         states = jax.vmap(env.step)(states, actions)
         returns = jnp.where(states.done & ~finished, states.episode_return, returns)
-        return (states, returns, finished | states.done), None
+        return states, returns, finished | states.done, action_keys, count + 1
 
     @functools.partial(jax.jit, compiler_options=XLA_DEFAULTS)
     def run(key):
         reset_key, action_key = jax.random.split(key)
         states = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
-        carry = (states, jnp.zeros(episodes), jnp.zeros(episodes, bool))
-        (_, returns, _), _ = jax.lax.scan(step, carry, jax.random.split(action_key, 1000))
+        action_keys = jax.random.split(action_key, env.morphology.family.max_episode_steps)
+        carry = (states, jnp.zeros(episodes), jnp.zeros(episodes, bool), action_keys, 0)
+        _, returns, _, _, _ = jax.lax.while_loop(
+            lambda carry: ~carry[2].all() & (carry[4] < len(action_keys)), step, carry
+        )
         return returns
 
     return run(jax.random.PRNGKey(seed))

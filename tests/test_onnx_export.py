@@ -10,7 +10,7 @@ import jax
 import numpy as np
 import pytest
 
-from swat_jax import export, onnx_policy
+from swat_jax import export, onnx_policy, serving
 from swat_jax.cli import ERROR_STATUS
 from swat_jax.morphology import StructureBatch, get_set, load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
@@ -49,6 +49,27 @@ def test_onnxruntime_acts_as_the_jax_policy_on_every_body_of_a_set(name, tmp_pat
             expected = np.asarray(act(observation, StructureBatch(*structure)))
             np.testing.assert_allclose(policy(observation, body), expected, **TOLERANCE, err_msg=body)
             np.testing.assert_allclose(policy(observation, structure._asdict()), expected, **TOLERANCE)
+
+
+def test_a_set_actor_of_a_3d_body_exports_to_both_formats(tmp_path):
+    """SET (3D only): the jax.export file and the ONNX model act as the JAX actor, [batch, L, 3] actions."""
+    body, features = "3d_hopper_4_lower_shin", 41
+    network = network_config("set", width=8, heads=2, layers=1, feedforward=8)
+    actor, _ = make_actor_critic(network, features, motors=3)
+    params = jax.jit(actor.init)(jax.random.key(0))
+    structures = pad_structures([load(body)], 6)
+    structure = jax.tree.map(lambda x: x[0], structures)
+    observation = observations(5, 6, features)
+    expected = np.asarray(jax.jit(actor.apply)(params, observation, structure))
+    assert expected.shape == (5, 6, 3) and np.abs(expected).max() > 1e-3
+    program = export.serialize_actor(actor, params, structure, ("cpu",))
+    export.write_policy(tmp_path / "set.npz", program, structures, [body], features)
+    np.testing.assert_allclose(serving.load(tmp_path / "set.npz")(observation, body), expected, **TOLERANCE)
+    model = export.onnx_actor(actor, params, structure)
+    export.write_onnx_policy(tmp_path / "set.onnx", model, structures, [body], features, algo="set")
+    np.testing.assert_allclose(
+        onnx_policy.load(tmp_path / "set.onnx")(observation, body), expected, **TOLERANCE
+    )
 
 
 def test_smp_is_refused_with_the_format_that_serves_it():
