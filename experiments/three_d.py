@@ -1,4 +1,4 @@
-"""Learning on a 3D set: SWAT, AMORPHEUS and SMP with one preset, beside the random-action return.
+"""Learning on a 3D set: SWAT, AMORPHEUS, SMP and SET with one preset, beside the random-action return.
 
 Trains each algorithm on the set (``--seeds`` seeds in one program, one run directory each; a run
 directory that exists is resumed, or left as it is when it has finished, whatever budget it was started
@@ -30,12 +30,12 @@ from experiments.machine import cpu_model, host_cores
 from swat_jax.envs import BodyEnv
 from swat_jax.morphology import get_set
 
-ALGORITHMS = ("swat", "amorpheus", "smp")
+ALGORITHMS = ("swat", "amorpheus", "smp", "set")
 
 
 @dataclasses.dataclass(frozen=True)
 class ThreeDCommand:
-    """Train SWAT, AMORPHEUS and SMP on a 3D set with one preset; report them beside random actions."""
+    """Train SWAT, AMORPHEUS, SMP and SET on a 3D set with one preset; report them beside random actions."""
 
     env: str = "3d_hopper"
     """The environment set."""
