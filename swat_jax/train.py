@@ -359,13 +359,15 @@ def _loop(
 ) -> RunResult:
     """Iterate from where ``info`` says the run is until it is finished or a stop is requested: a metrics row
     per seed every log interval (with the evaluation's columns), a checkpoint every checkpoint interval
-    and one at the end."""
+    and one at the end. A finished run (resumed) ends at once, with nothing compiled."""
     config, env = experiment.config, experiment.env
     per_iteration = config.steps_per_iteration(env.num_bodies)
     total = config.iterations(env.num_bodies)
     log_every = max(1, round(config.metrics_interval() / per_iteration))
     checkpoint_every = max(1, round(config.checkpoint_interval / per_iteration))
     done, seconds, counted = info.iterations, info.seconds, fetch(state.counted)
+    if _finished(config, done, total, counted):
+        return _ended(config, checkpoints, done, total, per_iteration, counted)
     window = MetricsWindow(config.seeds, env.num_bodies, info.metrics_window, config.iteration.diagnostics)
     iteration, evaluation = _compiled_programs(experiment, state)
     saved = done
@@ -402,10 +404,25 @@ def _loop(
                 after_iteration(done)
         if saved != done:
             _save(experiment, checkpoints, state, done, seconds, window)
+    return _ended(config, checkpoints, done, total, per_iteration, counted)
+
+
+def _ended(
+    config: TrainConfig,
+    checkpoints: Checkpoints,
+    done: int,
+    total: int,
+    per_iteration: int,
+    counted: np.ndarray,
+) -> RunResult:
+    """The run's result after ``done`` iterations of ``per_iteration`` steps, saying so when the --steps cap
+    came before the counted budget."""
+    steps = done * per_iteration
     if done == total and not _counted_enough(config, counted):
-        print(_short_of_counted(config, counted, done * per_iteration))
-    finished = _finished(config, done, total, counted)
-    return RunResult(checkpoints.directory.parent, done * per_iteration, interrupted=not finished)
+        print(_short_of_counted(config, counted, steps))
+    return RunResult(
+        checkpoints.directory.parent, steps, interrupted=not _finished(config, done, total, counted)
+    )
 
 
 def _compiled_programs(

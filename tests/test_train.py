@@ -269,6 +269,17 @@ def test_a_damaged_newest_checkpoint_is_set_aside_and_the_resume_equals_the_unin
     assert not differing, f"resumed run differs in {differing[:5]}"
 
 
+def test_a_finished_run_resumed_ends_at_once_with_nothing_compiled(
+    trained_run, tmp_path, capsys, monkeypatch
+):
+    run_dir = copy_run(trained_run, tmp_path)
+    monkeypatch.setattr(Experiment, "compiled_iteration", lambda *args: pytest.fail("compiled the iteration"))
+    result = train(load_config(run_dir / "config.json"), resume=True, progress=False)
+    assert not result.interrupted and result.env_steps == 600
+    assert "compiling" not in capsys.readouterr().out
+    assert read_metrics(run_dir) == read_metrics(trained_run), "its metrics as they were"
+
+
 def test_resume_without_checkpoint_starts_from_the_saved_config(trained_run, tmp_path):
     run_dir = copy_run(trained_run, tmp_path)
     shutil.rmtree(run_dir / "checkpoints")
