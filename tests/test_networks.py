@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -457,3 +458,15 @@ def test_vmap_over_tasks_equals_per_task_apply(name, bundles, structures13):
             vmapped_q, critic_apply(bundle.critic_params, obs[k], actions[k], structure), strict=True
         ):
             np.testing.assert_allclose(vmapped[k], single, atol=1e-5)
+
+
+def test_the_docs_parameter_table_is_what_the_command_prints(capsys):
+    """docs/networks.md quotes ``python -m swat_jax.networks``: every row, SET on the 3D set only."""
+    from swat_jax.networks.__main__ import main
+
+    main()
+    printed = [f"    {line}" for line in capsys.readouterr().out.splitlines()]
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "networks.md").read_text().splitlines()
+    start = docs.index(printed[0])
+    assert docs[start : start + len(printed)] == printed
+    assert [row.split()[0] for row in printed[1:] if row.split()[2] == "set"] == ["3D-SGRL"]

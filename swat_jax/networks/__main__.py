@@ -7,17 +7,22 @@ import jax
 from swat_jax.networks.config import network_config
 from swat_jax.networks.policies import make_actor_critic, param_count
 
-SETS = (("Animal-Walkers", 21), ("CWHH++", 19))
-"""(environment set, observation values per limb)."""
-NETWORKS = ("swat", "amorpheus", "smp")
+PLANAR = ("swat", "amorpheus", "smp")
+"""The networks of planar bodies; SET takes 3D bodies only."""
+SETS = (
+    ("Animal-Walkers", 21, 1, PLANAR),
+    ("CWHH++", 19, 1, PLANAR),
+    ("3D-SGRL", 41, 3, (*PLANAR, "set")),
+)
+"""(environment set, observation values per limb, actions per limb, the networks that take its bodies)."""
 
 
 def parameter_table() -> list[tuple[str, int, str, int, int]]:
     """Rows (set, features per limb, network, actor parameters, critic parameters); shapes only, no weights."""
     rows = []
-    for set_name, features in SETS:
-        for name in NETWORKS:
-            actor, critic = make_actor_critic(network_config(name), features)
+    for set_name, features, motors, networks in SETS:
+        for name in networks:
+            actor, critic = make_actor_critic(network_config(name), features, motors=motors)
             rng = jax.random.key(0)
             actor_params, critic_params = jax.eval_shape(actor.init, rng), jax.eval_shape(critic.init, rng)
             rows.append((set_name, features, name, param_count(actor_params), param_count(critic_params)))
