@@ -16,8 +16,8 @@ states and actions: the observation it returns, reward and done, and the observa
 own kinematics. ``models.npz`` and ``models/``: run folders of SWAT and AMORPHEUS saved by the
 original's ``checkpoint.save_model``, their state dicts and the actions of their actors. ``updates.npz``: two consecutive ``TD3.train_single`` updates of SWAT and SMP from filled weights,
 the batches and the target-policy noise the original drew, and the parameters after each update at
-sampled positions. Only :func:`filled_state_dict`, :func:`flat_ids` and :func:`stored_shapes` are imported by the tests;
-they need nothing but NumPy.
+sampled positions. Only :func:`filled_state_dict`, :func:`flat_ids`, :func:`stored_shapes` and
+:func:`assert_structure_inputs_equal` are imported by the tests; the first three need nothing but NumPy.
 """
 
 from __future__ import annotations
@@ -80,6 +80,27 @@ def stored_shapes(data, prefix: str) -> dict[str, tuple[int, ...]]:
         str(key): tuple(int(size) for size in str(shape).split(","))
         for key, shape in zip(data[f"{prefix}/keys"], data[f"{prefix}/shapes"], strict=True)
     }
+
+
+def assert_structure_inputs_equal(structure, row: int, data, body: str, tolerance: dict) -> None:
+    """Row ``row`` of a padded StructureBatch has the parents (any negative one the root's -1), traversal
+    positions and relations (swat_jax's channel order) that ``data`` holds for ``body`` under
+    ``structure/{body}/``, written by the reference code."""
+    from swat_jax.morphology import RELATION_NAMES
+    from swat_jax.networks.original_weights import ORIGINAL_RELATION_ORDER
+
+    limbs = int(structure.num_limbs[row])
+    parents = data[f"structure/{body}/parents"]
+    np.testing.assert_array_equal(structure.parents[row, :limbs], np.where(parents < 0, -1, parents))
+    np.testing.assert_array_equal(
+        structure.traversal_positions[row, :limbs], data[f"structure/{body}/traversals"]
+    )
+    channels = [ORIGINAL_RELATION_ORDER.index(name) for name in RELATION_NAMES]
+    np.testing.assert_allclose(
+        structure.relations[row, :limbs, :limbs],
+        data[f"structure/{body}/relations"][..., channels],
+        **tolerance,
+    )
 
 
 def _original_args(**overrides):

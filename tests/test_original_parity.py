@@ -17,13 +17,13 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from original_parity_data import filled_state_dict, flat_ids, stored_shapes
+from original_parity_data import assert_structure_inputs_equal, filled_state_dict, flat_ids, stored_shapes
 from scipy import stats
 
 from swat_jax.envs.observation import limb_observation
-from swat_jax.morphology import RELATION_NAMES, load, pad_structures
+from swat_jax.morphology import load, pad_structures
 from swat_jax.networks import make_actor_critic, network_config
-from swat_jax.networks.original_weights import ORIGINAL_RELATION_ORDER, actor_params, critic_params
+from swat_jax.networks.original_weights import actor_params, critic_params
 from swat_jax.td3.learner import Learner, LearnerState, TD3Config
 from swat_jax.td3.replay import Transitions
 
@@ -69,19 +69,7 @@ def padded_inputs(body: str) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("body", BODIES)
 def test_structure_inputs_equal_the_original(body):
-    row = BODIES.index(body)
-    limbs = int(STRUCTURE.num_limbs[row])
-    parents = DATA[f"structure/{body}/parents"]
-    np.testing.assert_array_equal(STRUCTURE.parents[row, :limbs], np.where(parents < 0, -1, parents))
-    np.testing.assert_array_equal(
-        STRUCTURE.traversal_positions[row, :limbs], DATA[f"structure/{body}/traversals"]
-    )
-    channels = [ORIGINAL_RELATION_ORDER.index(name) for name in RELATION_NAMES]
-    np.testing.assert_allclose(
-        STRUCTURE.relations[row, :limbs, :limbs],
-        DATA[f"structure/{body}/relations"][..., channels],
-        **TOLERANCE,
-    )
+    assert_structure_inputs_equal(STRUCTURE, BODIES.index(body), DATA, body, TOLERANCE)
 
 
 @functools.cache

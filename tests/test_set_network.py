@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from original_parity_data import filled_state_dict, stored_shapes
+from original_parity_data import assert_structure_inputs_equal, filled_state_dict, stored_shapes
 from scipy.spatial.transform import Rotation
 
 from swat_jax.morphology import RELATION_NAMES, TRAVERSAL_NAMES, load, pad_structures
@@ -179,17 +179,7 @@ def padded_inputs() -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("body", BODIES)
 def test_structure_inputs_equal_sgrls(body):
-    row, limbs = BODIES.index(body), int(STRUCTURE.num_limbs[BODIES.index(body)])
-    np.testing.assert_array_equal(STRUCTURE.parents[row, :limbs], DATA[f"structure/{body}/parents"])
-    np.testing.assert_array_equal(
-        STRUCTURE.traversal_positions[row, :limbs], DATA[f"structure/{body}/traversals"]
-    )
-    channels = [ORIGINAL_RELATION_ORDER.index(name) for name in RELATION_NAMES]
-    np.testing.assert_allclose(
-        STRUCTURE.relations[row, :limbs, :limbs],
-        DATA[f"structure/{body}/relations"][..., channels],
-        **TOLERANCE,
-    )
+    assert_structure_inputs_equal(STRUCTURE, BODIES.index(body), DATA, body, TOLERANCE)
 
 
 def test_actor_and_twin_critic_equal_sgrls_on_every_body_padded():
