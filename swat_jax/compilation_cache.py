@@ -44,10 +44,11 @@ MIN_COMPILE_SECONDS = 1.0
 """Programs that compile faster than this are not worth a disk entry."""
 PROGRAMS = "programs"
 """The subdirectory of the cache directory that holds :func:`compile_cached`'s programs."""
-PORTABLE_CUSTOM_CALL = re.compile(r"lapack_\w+_ffi")
+PORTABLE_CUSTOM_CALL = re.compile(r"lapack_\w+_ffi|swat_jax_c_physics")
 """The custom calls a program loaded in another process can make: LAPACK's (which
-:func:`_initialize_lapack` sets up). Programs that call anything else (Warp's kernels, Python callbacks,
-a GPU library) are not saved."""
+:func:`_initialize_lapack` sets up) and C physics' (which every process that builds a C-physics body
+registers, :mod:`swat_jax.envs.named_callback`). Programs that call anything else (Warp's kernels, Python
+callbacks, a GPU library) are not saved."""
 SIZE_VARIABLE = "SWAT_JAX_PROGRAM_CACHE_GIB"
 DEFAULT_PROGRAMS_GIB = 2.0
 """The program cache's size limit, GiB, unless ``$SWAT_JAX_PROGRAM_CACHE_GIB`` sets another."""
@@ -129,7 +130,7 @@ def compile_cached(
         recipe: everything else the traced function depends on, as values with a deterministic ``repr``
             (frozen configs, tuples) or bytes: with this package's source and the settings, it must determine
             the program. None for programs that cannot be loaded in another process (calls into kernels
-            registered by this one, such as MuJoCo Warp's, or C physics' callbacks): compiled every time,
+            registered by this one, such as MuJoCo Warp's): compiled every time,
             never saved, and lowered with JAX's in-memory caches as they are (no cache could meet a fresh
             lowering of it, and clearing them would make the process trace its other functions again).
 

@@ -7,8 +7,11 @@ so each of these tests compiles in about a second.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +22,6 @@ from test_env_bodies import FLOAT32_OBSERVATION_TOLERANCE, FLOAT32_STATE_TOLERAN
 
 from swat_jax.envs import BodyEnv, MultiTaskEnv
 from swat_jax.envs.physics import resolve_physics
-from swat_jax.runs import programs
 
 STEPS = 200
 
@@ -119,7 +121,75 @@ def test_multi_task_c_physics_runs_seeds_lock_step_and_resets():
     np.testing.assert_array_equal(np.asarray(results.reward[:, 1]), np.asarray(alone_results.reward))
     np.testing.assert_allclose(np.asarray(both.observation[1]), np.asarray(alone.observation), atol=1e-6)
     assert np.asarray(results.terminated).any(), "no copy ended an episode in 40 steps"
-    assert programs.environments(env) is None, "C physics programs call back into this process: not cacheable"
+
+
+ANOTHER_PROCESS = """
+import jax, jax.numpy as jnp, numpy as np
+from swat_jax.compilation_cache import compile_cached, enable_caches
+from swat_jax.envs import MultiTaskEnv
+from swat_jax.runs import programs
+enable_caches()
+env = MultiTaskEnv(["hopper_3", "walker_2_flipped"], 2, physics="c")
+traces = []
+
+def build():
+    def rollout(key):
+        traces.append(key)
+        actions = jax.random.uniform(key, (30, 2, 2, env.max_limbs), minval=-1, maxval=1)
+        step = lambda state, action: (env.step(state, action)[0], None)
+        return jax.lax.scan(step, env.reset(key), actions)[0].observation
+
+    return jax.jit(rollout)
+
+key = jax.random.PRNGKey(3)
+observation = np.asarray(compile_cached("rollout", build, (key,), programs.environments(env))(key))
+calls = sum(sum(body.simulator.calls.values()) for body in env.envs)
+print(observation.tobytes().hex(), len(traces), calls)
+"""
+
+
+def test_a_c_physics_program_compiled_in_one_process_runs_in_another(tmp_path):
+    """The program names its simulator rather than holding this process's callback, so the program cache
+    keeps it: a second process loads it without tracing, and its own simulators step the same states."""
+    environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path)}
+
+    def run() -> list[str]:
+        command = [sys.executable, "-c", ANOTHER_PROCESS]
+        return subprocess.run(
+            command, capture_output=True, text=True, env=environment, check=True
+        ).stdout.split()
+
+    compiled, loaded = run(), run()
+    assert compiled[1:] == ["1", "122"], "traces; calls: 2 bodies x (a reset, 30 x (a step, the resets))"
+    assert loaded[1:] == ["0", "122"], "the second process traced the program again, or stepped no physics"
+    assert loaded[0] == compiled[0]
+
+
+EXIT_WHILE_RUNNING = """
+import atexit, jax
+from swat_jax.envs import MultiTaskEnv
+env = MultiTaskEnv(["hopper_3", "walker_2_flipped"], 2, physics="c")
+
+def rollout(key):
+    actions = jax.random.uniform(key, (300, 2, 2, env.max_limbs), minval=-1, maxval=1)
+    return jax.lax.scan(lambda state, action: (env.step(state, action)[0], None), env.reset(key), actions)[0]
+
+key = jax.random.PRNGKey(0)
+state = jax.jit(rollout).lower(key).compile()(key)
+print("returned after", [body.simulator.calls[0] for body in env.envs], "calls")
+atexit.register(lambda: print("at exit", [body.simulator.calls[0] for body in env.envs], "calls"))
+"""
+
+
+def test_a_process_that_exits_while_its_physics_runs_waits_for_it():
+    """A C-physics program runs asynchronously; an interpreter that exits meanwhile first lets it end
+    (else it calls into a stopped interpreter: errors from stopped thread pools, or a hung exit)."""
+    finished = subprocess.run(
+        [sys.executable, "-c", EXIT_WHILE_RUNNING], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert "returned after [0, 0] calls" in finished.stdout, "the program ran to its end before returning"
+    assert "at exit [601, 601] calls" in finished.stdout, finished.stdout
+    assert "Error" not in finished.stderr, finished.stderr
 
 
 def test_a_step_mujoco_rejects_names_the_body_and_the_fix(tmp_path):

@@ -274,6 +274,8 @@ def test_a_runs_recipe_holds_what_its_programs_are_traced_from(tmp_path, hopper_
     assert program_recipe(dataclasses.replace(config, seeds=3), env) != recipe
     assert program_recipe(dataclasses.replace(config, td3=TD3Config(batch_size=8)), env) != recipe
     assert program_recipe(config, MultiTaskEnv(["hopper_3"], config.envs.copies + 1)) != recipe
+    on_c = program_recipe(config, MultiTaskEnv(["hopper_3"], config.envs.copies, physics="c"))
+    assert on_c is not None and on_c != recipe, "C physics programs are kept, apart from MJX's"
     body = tmp_path / "hopper_3.xml"
     (tmp_path / "assets").symlink_to(MORPHOLOGIES / "assets")
     original = (MORPHOLOGIES / "hopper_3.xml").read_text()

@@ -2,12 +2,17 @@
 
 MJX compiles a body's physics into the XLA program, which on a CPU steps at a few percent of MuJoCo C's
 rate and compiles for tens of seconds per body. ``physics="c"`` traces no physics at all: each call of
-:meth:`CSimulator.advance` or :meth:`CSimulator.derive` is one ``jax.pure_callback`` that receives every
-copy of every seed at once (``vmap_method="broadcast_all"``: the vmapped axes arrive as leading axes of
-its arguments) and computes them with ``mujoco.mj_step`` and MuJoCo's kinematics on a thread pool
-(MuJoCo releases the GIL while it computes). Policy, replay and updates stay one compiled program around
-it, and the simulator state stays arrays (:class:`CData`), so checkpoints, exact resume, seeds, variants
-and sharding work as on MJX.
+:meth:`CSimulator.advance` or :meth:`CSimulator.derive` is one call of the host function :data:`TARGET`
+(:mod:`swat_jax.envs.named_callback`) that receives every copy of every seed at once (the vmapped axes
+arrive as leading axes of its arguments) and computes them with ``mujoco.mj_step`` and MuJoCo's
+kinematics on a thread pool (MuJoCo releases the GIL while it computes). Policy, replay and updates stay
+one compiled program around it, and the simulator state stays arrays (:class:`CData`), so checkpoints,
+exact resume, seeds, variants and sharding work as on MJX.
+
+The program names its simulator by :attr:`CSimulator.key`, a digest of what the simulator computes (its
+models, derived fields and device layout), not by a reference to this process's object: JAX's persistent
+cache and the program cache keep C-physics programs, and a later process that builds the same simulator
+loads them instead of compiling them again.
 
 Precision: MuJoCo C computes in float64, which JAX holds only with ``jax_enable_x64``. :class:`CData`
 keeps each float64 state value as its float32 rounding (``qpos``, ``qvel``, ``act``, ``qacc_warmstart``,
@@ -37,12 +42,12 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import functools
+import hashlib
 import math
 import os
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -52,7 +57,8 @@ import numpy as np
 from flax import struct
 from jax.sharding import Mesh, PartitionSpec
 
-from swat_jax.envs.controller import derive_kinematics
+from swat_jax.envs import named_callback
+from swat_jax.envs.controller import derive_kinematics, model_digest
 
 EXPLOSION_SPEED = 1e3
 """A joint speed (m/s or rad/s) no benchmark body reaches; above it the simulation counts as unstable."""
@@ -71,6 +77,8 @@ DERIVED = ("xpos", "xquat", "cvel", "subtree_com", "site_xpos")
 termination read (3D bodies also ``xaxis``, :data:`JOINT_AXES`)."""
 JOINT_AXES = "xaxis"
 """The derived field a 3D body's observation reads besides :data:`DERIVED`: the world axis of every joint."""
+TARGET = "swat_jax_c_physics"
+"""The name under which programs call C physics (:func:`_host_target`)."""
 
 
 @struct.dataclass
@@ -209,14 +217,22 @@ class CSimulator:
         self._slots = {
             shard: _Slot.make(max(1, self.threads // len(places)), place) for shard, place in places.items()
         }
+        self.derived = DERIVED + ((JOINT_AXES,) if joint_axes else ())
+        """The derived fields this simulator's states hold."""
+        self.key = hashlib.sha256(
+            repr(([model_digest(m) for m in self.models], self.derived, sorted(places.items()))).encode()
+        ).hexdigest()
+        """What programs name this simulator by: the SHA-256 of its models, derived fields and the shards
+        this process calls for. Simulators of one key compute the same; the one that traced a program
+        last (or was built first) computes its calls."""
+        _simulators.setdefault(self.key, self)
+        named_callback.register(TARGET, _host_target)
         self.calls: collections.Counter[int] = collections.Counter()
         """Host calls made by this process so far, by shard (device of the mesh; 0 without shards)."""
         self.timeline: list[tuple[int, float, float]] | None = None
         """Set it to a list to record every later call as (shard, start, end), ``time.perf_counter`` seconds:
         whether the devices' calls overlap in time."""
         example = mujoco.MjData(model)
-        self.derived = DERIVED + ((JOINT_AXES,) if joint_axes else ())
-        """The derived fields this simulator's states hold."""
         self._derived_shapes = {name: np.shape(getattr(example, name)) for name in self.derived}
         zeros = {name: np.zeros(shape, np.float32) for name, shape in self._derived_shapes.items()}
         self.initial = CData(
@@ -237,26 +253,27 @@ class CSimulator:
     def advance(self, data: CData, steps: int, index: jax.Array | None = None) -> CData:
         """``steps`` calls of ``mj_step`` from ``data`` (its ctrl applied) on model ``index``; the derived
         fields as the last one leaves them, with ``cvel`` of the new qvel (module docstring)."""
-        return self._with_outputs(data, self._call(_advance_copy, data, index, steps))
+        return self._with_outputs(data, self._call("advance", data, index, steps))
 
     def derive(self, data: CData, index: jax.Array | None = None) -> CData:
         """Positions, orientations, sites and frame velocities computed from qpos and qvel
         (``mj_kinematics``, ``mj_comPos``, ``mj_comVel``)."""
-        return self._with_outputs(data, self._call(_derive_copy, data, index, 0))
+        return self._with_outputs(data, self._call("derive", data, index, 0))
 
     def velocities(self, data: CData, index: jax.Array | None = None) -> CData:
         """``data`` itself: :meth:`advance` has computed the frame velocities of its new qvel."""
         return data
 
-    def _call(
-        self, compute: CopyFunction, data: CData, index: jax.Array | None, steps: int
-    ) -> tuple[jax.Array, ...]:
-        """``compute`` on every copy of ``data``: one host callback, or one per device with shards."""
+    def _call(self, compute: str, data: CData, index: jax.Array | None, steps: int) -> tuple[jax.Array, ...]:
+        """:data:`COMPUTE` ``[compute]`` on every copy of ``data``: one host call, or one per device with
+        shards."""
         shapes = _result_shapes(data, self.state_size, self.derived)
+        _simulators[self.key] = self
 
         def callback(shard: jax.Array, *inputs: jax.Array) -> tuple[jax.Array, ...]:
-            host = functools.partial(self._host_call, compute, steps)
-            return jax.pure_callback(host, shapes, shard, *inputs, vmap_method="broadcast_all")
+            return named_callback.call(
+                TARGET, shapes, shard, *inputs, simulator=self.key, compute=compute, steps=steps
+            )
 
         inputs = self._inputs(data, index)
         if self.shards is None:
@@ -385,6 +402,29 @@ def _derive_copy(
     """The kinematics of one copy at ``state`` (left unchanged; ``ctrl`` and ``steps`` unused)."""
     mujoco.mj_setState(model, data, state[: model.nq + model.nv], POSITION)
     derive_kinematics(model, data)
+
+
+COMPUTE: dict[str, CopyFunction] = {"advance": _advance_copy, "derive": _derive_copy}
+"""What a call of :data:`TARGET` computes for each copy, by its ``compute`` attribute."""
+_simulators: dict[str, CSimulator] = {}
+"""This process's simulators by :attr:`CSimulator.key`: the one that computes a program's calls."""
+
+
+def _host_target(
+    args: Sequence[np.ndarray], results: Sequence[np.ndarray], attributes: Mapping[str, str | int]
+) -> None:
+    """A call of :data:`TARGET`: the named simulator's :meth:`CSimulator._host_call`, written into the
+    ``results`` buffers."""
+    simulator = _simulators.get(str(attributes["simulator"]))
+    if simulator is None:
+        raise RuntimeError(
+            f"a program calls C physics simulator {attributes['simulator']} that this process has not built; "
+            "build its environment (swat_jax.envs.BodyEnv with physics 'c') before running the program"
+        )
+    compute = COMPUTE[str(attributes["compute"])]
+    outputs = simulator._host_call(compute, int(attributes["steps"]), *args)
+    for result, output in zip(results, outputs, strict=True):
+        result[...] = output
 
 
 def _joined(rounded: np.ndarray, remainder: np.ndarray) -> np.ndarray:

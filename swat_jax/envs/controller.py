@@ -11,6 +11,7 @@ with onnxruntime, NumPy and MuJoCo (docs/evaluation-and-export.md, "A control lo
 
 from __future__ import annotations
 
+import hashlib
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import mujoco
@@ -67,6 +68,13 @@ def controls(motor_actions: np.ndarray, action: Any, xp: Any = np) -> Any:
     """[nu] the actuators' controls for one body's ``action`` ([n] or [n, M], or padded to more limbs): each
     actuator's entry of the flattened action, clipped to [-1, 1]."""
     return xp.clip(xp.ravel(action)[motor_actions], -1.0, 1.0)
+
+
+def model_digest(mj_model: mujoco.MjModel) -> str:
+    """SHA-256 of ``mj_model`` saved as MuJoCo's binary MJB: every size, parameter and asset."""
+    buffer = np.zeros(mujoco.mj_sizeModel(mj_model), np.uint8)
+    mujoco.mj_saveModel(mj_model, None, buffer)
+    return hashlib.sha256(buffer).hexdigest()
 
 
 def derive_kinematics(model: mujoco.MjModel, data: mujoco.MjData) -> None:

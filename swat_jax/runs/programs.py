@@ -10,19 +10,17 @@ programs (initial state, iteration, evaluation) the recipe is
   and, per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary MJB: every size,
   parameter and asset, so an edited MJCF file is a new program under the same name).
 
-Environments with Warp or C physics have no recipe: their programs call kernels or callbacks that this
-process registers, which another process cannot load.
+Environments with Warp physics have no recipe: their programs call kernels that this process registers,
+which another process cannot load. C physics programs call MuJoCo by name
+(:mod:`swat_jax.envs.named_callback`), so another process that builds the same bodies loads them.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from typing import Any
 
-import mujoco
-import numpy as np
-
+from swat_jax.envs.controller import model_digest
 from swat_jax.envs.multi_task import MultiTaskEnv
 from swat_jax.runs.config import HOST_ONLY, TrainConfig
 
@@ -43,22 +41,21 @@ def program_config(config: TrainConfig) -> TrainConfig:
 
 
 def environments(env: MultiTaskEnv) -> tuple[Any, ...] | None:
-    """What ``env``'s programs are traced from besides their arguments; None with Warp or C physics."""
-    if any(body.simulator.implementation != "jax" for body in env.envs):
+    """What ``env``'s programs are traced from besides their arguments; None with Warp physics."""
+    if any(body.simulator.implementation == "warp" for body in env.envs):
         return None
     return (
         env.copies,
         env.max_limbs,
         env.lock_step,
         *(
-            (body.morphology, body.torso_relative_x, body.stale_kinematics, model_digest(body.mj_model))
+            (
+                body.morphology,
+                body.torso_relative_x,
+                body.stale_kinematics,
+                body.simulator.implementation,
+                model_digest(body.mj_model),
+            )
             for body in env.envs
         ),
     )
-
-
-def model_digest(mj_model: mujoco.MjModel) -> str:
-    """SHA-256 of ``mj_model`` saved as MuJoCo's binary MJB."""
-    buffer = np.zeros(mujoco.mj_sizeModel(mj_model), np.uint8)
-    mujoco.mj_saveModel(mj_model, None, buffer)
-    return hashlib.sha256(buffer).hexdigest()
