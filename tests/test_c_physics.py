@@ -213,3 +213,13 @@ def test_auto_physics_is_c_on_the_cpu_and_bad_names_are_refused():
     assert resolve_physics("jax") == "jax"
     with pytest.raises(ValueError, match="physics must be one of auto, jax, warp, c"):
         resolve_physics("mujoco")
+
+
+def test_c_physics_is_refused_where_the_programs_run_on_an_accelerator(monkeypatch):
+    """Its host function is registered for CPU programs; on a GPU the error says what to run instead."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert resolve_physics("auto") == "jax"
+    with pytest.raises(
+        ValueError, match=r"physics 'c' runs MuJoCo C from programs on the CPU.*JAX_PLATFORMS=cpu"
+    ):
+        resolve_physics("c")

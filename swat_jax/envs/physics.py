@@ -50,13 +50,20 @@ def resolve_physics(physics: Physics) -> Implementation:
     thousands of copies in parallel there).
 
     Raises:
-        ValueError: not one of :data:`PHYSICS`.
+        ValueError: not one of :data:`PHYSICS`; or ``c`` where JAX's default backend is not the CPU (C
+            physics is a host function of CPU programs, :mod:`swat_jax.envs.named_callback`).
     """
     if physics not in PHYSICS:
         raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
+    backend = jax.default_backend()
+    if physics == "c" and backend != "cpu":
+        raise ValueError(
+            f"physics 'c' runs MuJoCo C from programs on the CPU, and JAX's default backend here is "
+            f"{backend!r}: use physics 'jax' or 'auto' (MJX on the {backend}), or JAX_PLATFORMS=cpu"
+        )
     if physics != "auto":
         return physics
-    return "c" if jax.default_backend() == "cpu" else "jax"
+    return "c" if backend == "cpu" else "jax"
 
 
 RK4_NEXT_OFFSETS = np.array([0.5, 0.5, 1.0, 0.0])
