@@ -147,9 +147,10 @@ CANDIDATES: dict[str, Candidate] = {
     "fast-rscale-p0.5-2dev": Candidate(reward_scaling=True, pessimism=0.5, action_penalty=0.0),
     "fast-ap0.01-2dev": Candidate(action_penalty=0.01),
     "fast-ap0.1-2dev": Candidate(action_penalty=0.1),
-    "fast-ap0.003-2dev": Candidate(action_penalty=0.003),
+    "fast-ap0.003-2dev": Candidate(action_penalty=0.003, pessimism=0.5),
     "fast-ap0.1-from2-2dev": Candidate(action_penalty=0.1, action_penalty_from=2.0),
     "fast-ap0.003-p0-2dev": Candidate(action_penalty=0.003, pessimism=0.0),
+    "fast-ap0.003-p0.25-2dev": Candidate(action_penalty=0.003, pessimism=0.25),
 }
 """swat_jax configurations by name: ``paper`` is against_original's run (the paper preset in lock-step rounds,
 stopping at the original's counted budget); every other is its preset at the scale's sizes and
@@ -157,7 +158,8 @@ hyperparameters with the candidate's changes, trained for the original's budget.
 preset with Flax's initial weights; ``-rscale`` with per-body reward scaling, ``-pX`` at target pessimism
 X, ``-apW`` with the actor's action penalty W, ``-fromU`` counting it from |u| = U; ``-Ndev``: the same
 with the CPU's cores as N JAX devices (:data:`CPU_DEVICES`). ``fast`` and ``fast-2dev`` are the preset of
-the day. The candidates of the searches before are retired: each one's config is in the results folder that
+the day (``fast-ap0.003-p0.25-2dev`` spelled out; ``fast-ap0.003-2dev`` is the preset before it, at
+pessimism 0.5). The candidates of the searches before are retired: each one's config is in the results folder that
 reports it, ``runs/<set>-<candidate>/config.json`` (experiments/LAB.md, "Retired candidates")."""
 CPU_DEVICES: dict[str, int] = {name: 2 for name in CANDIDATES if name.endswith("-2dev")}
 """Candidates run as N CPU devices (``--xla_force_host_platform_device_count``, the seeds split over

@@ -19,9 +19,14 @@ STORED = Path(__file__).parent / "data" / "formats"
 def test_todays_config_json_carries_its_version_and_reads_back_equal(tmp_path):
     fast = dataclasses.replace(PRESETS["fast"], env="hopper")
     assert json.loads(fast.to_json())["format_version"] == CONFIG_VERSION
-    assert load_config(STORED / "config_v2.json") == fast, "the stored version-2 file: today's fast preset"
-    (tmp_path / "config.json").write_text(PRESETS["paper"].to_json())
-    assert load_config(tmp_path / "config.json") == PRESETS["paper"] == TrainConfig()
+    written_then = dataclasses.replace(fast, td3=dataclasses.replace(fast.td3, target_pessimism=0.5))
+    assert load_config(STORED / "config_v2.json") == written_then, (
+        "the stored version-2 file: the fast preset it was written with, its pessimism 0.5 kept"
+    )
+    for preset in (fast, PRESETS["paper"]):
+        (tmp_path / "config.json").write_text(preset.to_json())
+        assert load_config(tmp_path / "config.json") == preset
+    assert PRESETS["paper"] == TrainConfig()
 
 
 def test_a_version_2_file_takes_todays_default_for_a_missing_field(tmp_path):

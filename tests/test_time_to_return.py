@@ -233,11 +233,14 @@ def test_every_candidate_is_its_preset_at_the_scale_with_its_changes(tmp_path):
         longer, run_dir="", td3=recipe.td3, iteration=dataclasses.replace(longer.iteration, diagnostics=False)
     )
     assert shape == dataclasses.replace(recipe, run_dir=""), "the preset's shape is the recipe's, as it ran"
-    last = dataclasses.replace(config("fast-ap0.003-2dev"), run_dir="")
+    last = dataclasses.replace(config("fast-ap0.003-p0.25-2dev"), run_dir="")
     assert last == dataclasses.replace(fast, run_dir=""), "and its TD3 settings the last search's"
-    before = config("fast-rscale-p0.5-2dev").td3
-    assert before.action_penalty == 0.0, "the preset before the action penalty, as it was measured"
-    assert dataclasses.replace(before, action_penalty=fast.td3.action_penalty) == fast.td3
+    before = config("fast-ap0.003-2dev").td3
+    assert before.target_pessimism == 0.5, "the preset before pessimism 0.25, as it was measured"
+    assert dataclasses.replace(before, target_pessimism=fast.td3.target_pessimism) == fast.td3
+    earlier = config("fast-rscale-p0.5-2dev").td3
+    assert earlier.action_penalty == 0.0, "the preset before the action penalty, as it was measured"
+    assert dataclasses.replace(earlier, action_penalty=fast.td3.action_penalty) == before
 
 
 def test_the_originals_budget_is_given_with_steps_and_a_run_of_another_is_refused(tmp_path, capsys):

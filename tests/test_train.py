@@ -475,7 +475,7 @@ def test_config_file_errors_name_the_file_and_field(tmp_path):
             td3 = dataclasses.replace(PRESETS["paper"].td3, action_penalty=penalty, action_penalty_from=start)
             TrainConfig(td3=td3)
     fast = PRESETS["fast"]
-    with pytest.raises(ConfigError, match=r"--td3\.atoms needs .* got 0.5 .* add --td3\.target-pessimism 1"):
+    with pytest.raises(ConfigError, match=r"--td3\.atoms needs .* got 0.25 .* add --td3\.target-pessimism 1"):
         dataclasses.replace(fast, td3=dataclasses.replace(fast.td3, atoms=51))
 
 

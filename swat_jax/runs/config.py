@@ -88,7 +88,7 @@ class TrainConfig:
     algo: Algorithm = "swat"
     """Network: swat, amorpheus, smp, a SWAT ablation (swat_no_pe, swat_no_re, swat_no_pe_re), or set (SGRL's subequivariant transformer, 3D sets only)."""
     preset: Preset = host_only("paper")
-    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, per-body reward scaling, target pessimism 0.5, an action penalty 0.003, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
+    """Preset that gave this run its defaults: paper (the original code's computation: 1 copy per body, its lock-step rounds with the updates at each round's end, 1 update per counted step, its observation quirks), intended (paper with every quirk fixed) or fast (the recipe measured fastest to the original's return on a CPU, docs/training.md: paper with the quirks fixed, 4 copies of chunk 16, 256 all_tasks updates of batch 25 per body per iteration, 3-step returns, per-body reward scaling, target pessimism 0.25, an action penalty 0.003, a width-32 one-layer network (feed-forward 64, Flax's initial weights) with learning rate 1e-3, 1,000 random steps and 50,000 replay rows per body)."""
     seed: int = host_only(0)
     """Seed of network initialisation, resets, exploration and replay sampling (the first seed, with --seeds)."""
     seeds: int = 1
@@ -247,7 +247,7 @@ class TrainConfig:
             raise ConfigError(
                 f"--td3.atoms needs --td3.target-pessimism 0 or 1 (the distributional critic bootstraps from one "
                 f"critic's distribution or the twins' mixture); got {self.td3.target_pessimism} (the fast "
-                f"preset's 0.5): add --td3.target-pessimism 1"
+                f"preset's is between): add --td3.target-pessimism 1"
             )
         if self.td3.atoms and not self.td3.value_min < self.td3.value_max:
             raise ConfigError(
@@ -362,7 +362,7 @@ PRESETS: dict[str, TrainConfig] = {
             learning_rate=1e-3,
             n_step=3,
             reward_scaling=True,
-            target_pessimism=0.5,
+            target_pessimism=0.25,
             action_penalty=0.003,
         ),
     ),
