@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 
@@ -17,3 +19,9 @@ def python_path_environment(*folders: str | Path, **variables: str) -> dict[str,
     if os.environ.get("PYTHONPATH"):
         entries.append(os.environ["PYTHONPATH"])
     return {**os.environ, **variables, "PYTHONPATH": os.pathsep.join(entries)}
+
+
+def printed_words(script: str, environment: dict[str, str]) -> list[str]:
+    """What ``python -c script`` prints, split into words, run in ``environment`` (fails if it fails)."""
+    command = [sys.executable, "-c", script]
+    return subprocess.run(command, capture_output=True, text=True, env=environment, check=True).stdout.split()

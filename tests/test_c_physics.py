@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from mujoco_reference import float64_state, mjx_and_c_rollouts, mjx_and_c_variant_rollouts, numpy_observation
+from subprocesses import printed_words
 from test_env_bodies import FLOAT32_OBSERVATION_TOLERANCE, FLOAT32_STATE_TOLERANCE, ROLLOUT_BODIES
 
 from swat_jax.envs import BodyEnv, MultiTaskEnv
@@ -152,14 +153,7 @@ def test_a_c_physics_program_compiled_in_one_process_runs_in_another(tmp_path):
     """The program names its simulator rather than holding this process's callback, so the program cache
     keeps it: a second process loads it without tracing, and its own simulators step the same states."""
     environment = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path)}
-
-    def run() -> list[str]:
-        command = [sys.executable, "-c", ANOTHER_PROCESS]
-        return subprocess.run(
-            command, capture_output=True, text=True, env=environment, check=True
-        ).stdout.split()
-
-    compiled, loaded = run(), run()
+    compiled, loaded = (printed_words(ANOTHER_PROCESS, environment) for _ in range(2))
     assert compiled[1:] == ["1", "122"], "traces; calls: 2 bodies x (a reset, 30 x (a step, the resets))"
     assert loaded[1:] == ["0", "122"], "the second process traced the program again, or stepped no physics"
     assert loaded[0] == compiled[0]

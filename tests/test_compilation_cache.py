@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import MORPHOLOGIES, tiny_train_config
+from subprocesses import printed_words
 
 from swat_jax import compilation_cache
 from swat_jax.compilation_cache import CacheSettingError, compile_cached
@@ -247,10 +248,7 @@ def test_a_program_saved_by_one_process_runs_in_another(program_cache):
     }
 
     def run() -> list[str]:
-        command = [sys.executable, "-c", script]
-        return subprocess.run(
-            command, capture_output=True, text=True, env=environment, check=True
-        ).stdout.split()
+        return printed_words(script, environment)
 
     compiled, loaded = run(), run()
     assert (compiled[-1], loaded[-1]) == ("1", "0"), "traces: the second process traced again"

@@ -63,6 +63,10 @@ DTYPES = {
 """``XLA_FFI_DataType`` to NumPy: the types a registered function can receive."""
 
 
+_HEAD = [("struct_size", ctypes.c_size_t), ("extension_start", ctypes.c_void_p)]
+"""The first two fields of every structure of the C API: its size and its extensions."""
+
+
 class _Extension(ctypes.Structure):
     pass
 
@@ -76,8 +80,7 @@ _Extension._fields_ = [
 
 class _Version(ctypes.Structure):
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("major", ctypes.c_int),
         ("minor", ctypes.c_int),
     ]
@@ -95,8 +98,7 @@ class _Values(ctypes.Structure):
     """``XLA_FFI_Args`` and ``XLA_FFI_Rets``: ``size`` typed pointers."""
 
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("size", ctypes.c_int64),
         ("types", ctypes.POINTER(ctypes.c_int)),
         ("items", ctypes.POINTER(ctypes.c_void_p)),
@@ -105,8 +107,7 @@ class _Values(ctypes.Structure):
 
 class _Attributes(ctypes.Structure):
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("size", ctypes.c_int64),
         ("types", ctypes.POINTER(ctypes.c_int)),
         ("names", ctypes.POINTER(ctypes.c_void_p)),
@@ -129,8 +130,7 @@ class _CallFrame(ctypes.Structure):
 
 class _Buffer(ctypes.Structure):
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("dtype", ctypes.c_int),
         ("data", ctypes.c_void_p),
         ("rank", ctypes.c_int64),
@@ -148,8 +148,7 @@ class _Scalar(ctypes.Structure):
 
 class _ErrorArguments(ctypes.Structure):
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("message", ctypes.c_char_p),
         ("errc", ctypes.c_int),
     ]
@@ -162,8 +161,7 @@ class _Api(ctypes.Structure):
     """The head of ``XLA_FFI_Api``: its first function creates an error."""
 
     _fields_ = [
-        ("struct_size", ctypes.c_size_t),
-        ("extension_start", ctypes.c_void_p),
+        *_HEAD,
         ("api_version", _Version),
         ("internal_api", ctypes.c_void_p),
         ("error_create", _ErrorCreate),
