@@ -54,6 +54,7 @@ WORKER_GROUPS = {
     "test_td3_iteration": "test_td3_iteration",
     "test_render": "test_render",
     "test_networks": "test_networks",
+    "test_env_against_mujoco": "test_env_against_mujoco",
 }
 """Modules whose tests run on one xdist worker under ``make test`` (``--dist loadgroup``), so that the
 fixtures they share are built once: the tiny runs (``trained_run``, ``trained_swat_run``: a training

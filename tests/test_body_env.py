@@ -56,9 +56,9 @@ def reference_reward(name: str, x_before: float, x_after: float, control: np.nda
 
 
 @functools.cache
-def compiled(name: str):
-    """The body's environment with a batched reset and a batched step-outcome, jitted once."""
-    env = BodyEnv(name)
+def compiled(name: str, physics: str):
+    """The body's environment on ``physics`` with a batched reset and a batched step-outcome, jitted once."""
+    env = BodyEnv(name, physics=physics)
     reset = jax.jit(jax.vmap(env.reset))
     outcome = jax.jit(jax.vmap(lambda state, data: env.finish_step(state, env.kinematics(data))))
     return env, reset, outcome
@@ -89,12 +89,19 @@ TERMINATION_BODIES = [
     "nervenet_fullcheetah",
     "nervenet_halfcheetah",
 ]
+SITE_BODIES = ["nervenet_ostrich", "nervenet_fullcheetah", "nervenet_halfcheetah"]
+"""The bodies whose termination reads site heights: checked on MJX as well. Every body's table is checked on
+MuJoCo C (the CPU's physics, no MJX program to compile); MJX's states and observations equal C's per body
+(test_env_bodies.py), and the reward and termination are the same code above either."""
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", TERMINATION_BODIES)
-def test_termination_and_reward_follow_the_benchmark_tables(name):
-    env, reset, outcome = compiled(name)
+@pytest.mark.parametrize(
+    ("name", "physics"),
+    [(name, "c") for name in TERMINATION_BODIES] + [(name, "jax") for name in SITE_BODIES],
+)
+def test_termination_and_reward_follow_the_benchmark_tables(name, physics):
+    env, reset, outcome = compiled(name, physics)
     qpos, qvel, control = random_states(env, np.random.default_rng(len(name)))
     start = reset(jax.random.split(jax.random.PRNGKey(0), SAMPLES))
     data = start.data.replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel), ctrl=jnp.asarray(control))
@@ -120,7 +127,7 @@ def test_termination_and_reward_follow_the_benchmark_tables(name):
 
 
 def test_an_unstable_simulation_terminates_with_zero_reward_and_no_nan():
-    _, reset, outcome = compiled("hopper_3")
+    _, reset, outcome = compiled("hopper_3", "c")
     start = reset(jax.random.split(jax.random.PRNGKey(0), 3))
     qvel = np.asarray(start.data.qvel).copy()
     qvel[0, 1] = np.nan
@@ -137,7 +144,7 @@ def test_an_unstable_simulation_terminates_with_zero_reward_and_no_nan():
     [("hopper_3", 0.005, 0.005 / np.sqrt(3)), ("cheetah_7_full", 0.1, 0.1)],
 )
 def test_reset_noise_follows_the_family(name, qpos_noise, qvel_std):
-    env, reset, _ = compiled(name)
+    env, reset, _ = compiled(name, "c")
     start = reset(jax.random.split(jax.random.PRNGKey(1), 512))
     qpos_offset = np.asarray(start.data.qpos) - env.mj_model.qpos0
     assert np.abs(qpos_offset).max() <= qpos_noise
@@ -151,7 +158,8 @@ def test_reset_noise_follows_the_family(name, qpos_noise, qvel_std):
 
 
 def test_reference_x_option_reads_absolute_x_below_the_torso():
-    relative, absolute = BodyEnv("hopper_3"), BodyEnv("hopper_3", torso_relative_x=False)
+    relative = BodyEnv("hopper_3", physics="c")
+    absolute = BodyEnv("hopper_3", physics="c", torso_relative_x=False)
     rng = jax.random.PRNGKey(2)
     start, reference = jax.jit(relative.reset)(rng), jax.jit(absolute.reset)(rng)
     limb_x = np.asarray(start.data.xpos[1:4, 0])

@@ -64,7 +64,7 @@ def random_policy_returns(env: BodyEnv, episodes: int, seed: int) -> jax.Array:
 
 @pytest.mark.slow
 def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
-    random_return = float(random_policy_returns(BodyEnv("hopper_3"), EPISODES, seed=0).mean())
+    random_return = float(random_policy_returns(BodyEnv("hopper_3", physics="c"), EPISODES, seed=0).mean())
     assert random_return == pytest.approx(RANDOM_RETURN_MEASURED, rel=0.5)
 
     config = tiny_train_config(

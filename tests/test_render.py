@@ -29,7 +29,7 @@ HOPPER_FPS = 125
 
 @pytest.fixture(scope="module")
 def env() -> BodyEnv:
-    return BodyEnv(BODY)
+    return BodyEnv(BODY, physics="c")
 
 
 @pytest.fixture(scope="module")

@@ -106,7 +106,7 @@ def test_each_copy_explores_with_its_own_noise_scale():
     )  # fmt: skip
     np.testing.assert_allclose(exploration_scales(config, copies), [0.0, 0.1, 0.2, 0.3], atol=1e-7)
     np.testing.assert_allclose(exploration_scales(CONFIG, 3), [CONFIG.exploration_noise] * 3)
-    env = MultiTaskEnv(["hopper_3"], copies=copies, max_limbs=4)
+    env = MultiTaskEnv(["hopper_3"], copies=copies, max_limbs=4, physics="c")
     actor, critic = make_actor_critic(NETWORK, 19)
     learner = Learner(actor, critic, TD3Config(batch_size=1024))  # no update: the actor stays the initial one
     state = jax.jit(lambda keys: init_train_state(env, learner, config, keys))(seed_keys(2, 1))

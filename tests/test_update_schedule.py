@@ -53,7 +53,7 @@ def adam_steps(optimizer_state: optax.OptState) -> int:
 @pytest.fixture(scope="module")
 def env() -> MultiTaskEnv:
     """2 copies per body: the first iteration (4 steps) fills a batch of 8."""
-    return MultiTaskEnv(BODIES, copies=2, max_limbs=LIMBS)
+    return MultiTaskEnv(BODIES, copies=2, max_limbs=LIMBS, physics="c")
 
 
 @pytest.fixture(scope="module")
