@@ -204,3 +204,23 @@ def test_without_lock_step_every_step_counts_and_only_finished_copies_restart():
     assert not env.lock_step
     _, result = step(reset(jax.random.PRNGKey(0)), random_action(7))
     np.testing.assert_array_equal(result.counted, True)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_a_shared_reset_key_starts_every_body_from_the_same_random_numbers(shared):
+    """The original code seeds every body's environment with the run's seed (docs/fidelity.md, row 39): with
+    ``shared_reset_key`` two bodies of one tree start, and restart at a round's end, in the same states; by
+    default each body draws its own."""
+    env = MultiTaskEnv(["hopper_3", "hopper_3"], 2, physics="c", lock_step=True, shared_reset_key=shared)
+    state = env.reset(jax.random.PRNGKey(0))
+    first, second = (np.asarray(body.data.qpos) for body in state.bodies)
+    assert not np.array_equal(first[0], first[1]), "the copies of a body draw their own numbers"
+    assert np.array_equal(first, second) == shared
+    step = jax.jit(env.step)
+    for _ in range(200):
+        state, result = step(state, jnp.ones((2, 2, 3)))
+        if bool(result.round_over):
+            break
+    assert bool(result.round_over), "the round ends within 200 steps: every copy restarts"
+    first, second = (np.asarray(body.data.qpos) for body in state.bodies)
+    assert np.array_equal(first, second) == shared

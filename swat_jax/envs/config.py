@@ -25,6 +25,8 @@ class EnvConfig:
     """Where the physics runs: c (MuJoCo's C library, called from the jitted program: nothing to compile, the fastest on a CPU), jax (MJX compiled into the XLA program: for GPUs), warp (MuJoCo Warp kernels called from it; needs pip install -e '.[warp]'), or auto: c where JAX runs on the CPU, jax on a GPU (docs/training.md, "Physics")."""
     torso_relative_x: bool = False
     """Limb x relative to the torso, as the paper intends (the fast preset); off (the paper preset) reproduces the original code's quirk: the torso reads x = 0, every other limb its world x, and the torso's linear velocity is that of the point (0, y, z) (docs/fidelity.md)."""
+    shared_reset_key: bool = False
+    """Every body of a seed draws its resets from one random key, so copy j of every body starts its episodes from the same random numbers, as the original code seeds every body's environment with the run's seed (docs/fidelity.md, row 39); off (both presets): a key per body."""
     stale_kinematics: bool = True
     """Observe the positions, orientations and sites that MuJoCo's step leaves (the last integrator stage's), with velocities from them and the new qvel, as the original code does (the paper preset; needs --envs.physics jax, c or auto); off: kinematics of the state after the step (the fast preset)."""
 

@@ -146,6 +146,9 @@ class MultiTaskEnv:
             program per body whatever their number (:class:`~swat_jax.envs.body.BodyEnv`).
         mesh: the devices the program runs on; on physics "c" with more than one device, each calls MuJoCo
             for its own block of every body's copies (module docstring). None: the calls run on one device.
+        shared_reset_key: every body of a seed draws its resets (and, in 3D, its targets) from one key
+            instead of a key of its own: copy j of every body starts its episodes from the same random
+            numbers, as the original code seeds every body's environment with the run's seed.
 
     Raises:
         ValueError: no bodies, ``copies`` < 1, a body larger than ``max_limbs``, or bodies whose
@@ -165,6 +168,7 @@ class MultiTaskEnv:
         lock_step: bool = False,
         variants: Sequence[Sequence[Morphology | str]] = (),
         mesh: Mesh | None = None,
+        shared_reset_key: bool = False,
     ):
         if copies < 1:
             raise ValueError(f"copies must be at least 1, got {copies}")
@@ -200,6 +204,7 @@ class MultiTaskEnv:
             )
         self.copies = copies
         self.lock_step = lock_step
+        self.shared_reset_key = shared_reset_key
         self.max_limbs = largest.num_limbs if max_limbs is None else max_limbs
         self.observation_features = self.envs[0].observation_features
         self.motors_per_limb = self.envs[0].morphology.motors_per_limb
@@ -388,7 +393,11 @@ class MultiTaskEnv:
         return over_copies
 
     def _split(self, rng: jax.Array, seeds: tuple[int, ...]) -> tuple[jax.Array, ...]:
-        """K + 1 keys [*S] from each seed's key: the seed's next key, then one per body."""
+        """K + 1 keys [*S] from each seed's key: the seed's next key, then one per body (with
+        ``shared_reset_key``, the same one K times)."""
+        if self.shared_reset_key:
+            rng, key = _per_seed(lambda key: tuple(jax.random.split(key)), seeds)(rng)
+            return (rng, *[key] * self.num_bodies)
         return _per_seed(lambda key: tuple(jax.random.split(key, self.num_bodies + 1)), seeds)(rng)
 
     def _copy_keys(self, keys: jax.Array, seeds: tuple[int, ...]) -> jax.Array:

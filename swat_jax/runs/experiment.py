@@ -298,6 +298,7 @@ def make_env(
         seeds=seeds,
         lock_step=lock_step,
         mesh=mesh,
+        shared_reset_key=config.envs.shared_reset_key,
     )
     if not variants:
         return MultiTaskEnv(bodies, copies, **settings)

@@ -6,9 +6,9 @@ programs (initial state, iteration, evaluation) the recipe is
 
 - its config less the host-only fields (declared with :func:`~swat_jax.runs.config.host_only`: where and
   how long the run goes, its logging, its first seed; :func:`program_config`), and
-- its environments (:func:`environments`): copies, padding, lock-step rounds, the observation's frame
-  and, per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary MJB: every size,
-  parameter and asset, so an edited MJCF file is a new program under the same name).
+- its environments (:func:`environments`): copies, padding, lock-step rounds, the reset keys, the
+  observation's frame and, per body, its morphology and the SHA-256 of its compiled MuJoCo model (binary
+  MJB: every size, parameter and asset, so an edited MJCF file is a new program under the same name).
 
 Environments with Warp physics have no recipe: their programs call kernels that this process registers,
 which another process cannot load. C physics programs call MuJoCo by name
@@ -48,6 +48,7 @@ def environments(env: MultiTaskEnv) -> tuple[Any, ...] | None:
         env.copies,
         env.max_limbs,
         env.lock_step,
+        env.shared_reset_key,
         *(
             (
                 body.morphology,
