@@ -63,6 +63,14 @@ scheduled on its own. (pytest-xdist 3.8's ``xdist_group`` mark groups nothing un
 node ids through an attribute pytest 9 no longer reads, so the grouping is done here.)"""
 
 
+def pytest_collection_modifyitems(items):
+    """The tests marked ``slow`` first, the others after them, each set in file order. Under ``make test``
+    xdist hands out the groups of :data:`WORKER_GROUPS` first (largest first), then every other test in this
+    order: the long tests start early and the short ones fill the end, where a long one would leave the other
+    worker idle."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup`` schedules by :data:`WORKER_GROUPS`; largest groups first."""

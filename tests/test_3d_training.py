@@ -75,6 +75,7 @@ def hopper_3d_folder(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_a_3d_run_trains_and_its_evaluation_records_the_targets(hopper_3d_folder, tmp_path):
     """A tiny run on a folder holding one 3D body: the policy it saves acts with three values per limb (as
     loaded, and exported to a file), and a recorded evaluation keeps the target of every pose."""

@@ -159,6 +159,7 @@ def plotted(csv_path: Path) -> dict[tuple[str, str], list[dict[str, str]]]:
     return lines
 
 
+@pytest.mark.slow
 def test_swat_jax_side_at_micro_scale_trains_draws_and_reports(tmp_path, capsys):
     argv = [
         "--scale",

@@ -95,7 +95,6 @@ MuJoCo C (the CPU's physics, no MJX program to compile); MJX's states and observ
 (test_env_bodies.py), and the reward and termination are the same code above either."""
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "physics"),
     [(name, "c") for name in TERMINATION_BODIES] + [(name, "jax") for name in SITE_BODIES],

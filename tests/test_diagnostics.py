@@ -135,6 +135,7 @@ def one_hopper():
     return env, tasks.structure, learner, config
 
 
+@pytest.mark.slow
 def test_the_iteration_scores_an_episode_by_the_critics_and_the_rewards_it_logged(one_hopper):
     """The first iteration: the random hopper falls once; its estimate is the initial critics' value of the
     first state and the policy's action there, its return the discounted sum of the rewards the iteration

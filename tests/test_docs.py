@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "python.md"
@@ -44,6 +45,7 @@ def test_the_page_marks_a_block_per_command():
     assert list(snippets()) == ["train", "eval", "export", "plot", "bodies"]
 
 
+@pytest.mark.slow
 def test_every_block_runs_in_order(tmp_path, monkeypatch, hopper_folder, capsys):
     monkeypatch.chdir(tmp_path)
     blocks = snippets()

@@ -79,6 +79,7 @@ def run_updates(learner: Learner, batch: Transitions, structure, updates: int = 
     return jax.jit(lambda state: jax.lax.scan(step, state, keys))(learner.init(jax.random.key(0)))
 
 
+@pytest.mark.slow
 def test_the_bucketed_update_equals_the_padded_update():
     padded, batch, structure = problem(buckets=1)
     bucketed = problem(buckets=3)[0]

@@ -93,6 +93,7 @@ def test_one_step_sampling_equals_the_plain_sample(buffer):
     np.testing.assert_array_equal(n_step.bootstrap, np.full((1, 64), DISCOUNT, np.float32))
 
 
+@pytest.mark.slow
 def test_the_critic_bootstraps_with_the_sampled_discount():
     """A batch whose bootstrap is 0.9 everywhere gives the loss of a learner whose discount is 0.9."""
     structure = pad_structures([load("hopper_3"), load("cheetah_4_front")], max_limbs=5)

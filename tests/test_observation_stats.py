@@ -9,6 +9,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from swat_jax import export
 from swat_jax.envs import MultiTaskEnv
@@ -77,6 +78,7 @@ def test_actor_and_critic_standardise_each_feature_with_their_statistics():
     )
 
 
+@pytest.mark.slow
 def test_training_accumulates_the_statistics_in_all_four_networks_and_no_gradient_moves_them():
     """Two seeds, three iterations of 4 steps of 2 copies (the updates begin after the first): each seed's
     statistics are those of its replay's 24 rows, in actor, critic and both targets, after the last

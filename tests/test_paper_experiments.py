@@ -92,6 +92,7 @@ def micro_scale(hopper_folder: Path, steps: int) -> paper.Scale:
     )
 
 
+@pytest.mark.slow
 def test_figure4_end_to_end_trains_resumes_keeps_and_draws(tmp_path, hopper_folder, capsys):
     out = tmp_path / "results"
     sets, algorithms = [str(hopper_folder)], ["amorpheus"]

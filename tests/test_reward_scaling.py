@@ -149,6 +149,7 @@ def test_the_iteration_keeps_the_statistics_of_every_copys_discounted_return(ite
     assert float(stats.count[0]) == 12
 
 
+@pytest.mark.slow
 def test_a_checkpoint_carries_the_statistics_and_running_returns_on(iterating, tmp_path):
     """Saved after one iteration and restored into a fresh state, the run goes on as if uninterrupted: the
     return statistics and every copy's G so far come back (a fresh state's would scale the next rewards

@@ -278,6 +278,7 @@ def test_set_refuses_what_would_break_its_symmetry_or_its_critic():
         make_actor_critic(CONFIG, FEATURES, atoms=51, motors=MOTORS)
 
 
+@pytest.mark.slow
 def test_one_td3_update_moves_every_weight_of_set():
     """From SGRL's initialisation (encoders U(+-0.1)): one critic step and one delayed actor step on two 3D
     bodies give every actor and critic weight a finite, nonzero change."""

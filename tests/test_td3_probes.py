@@ -130,6 +130,7 @@ def matching_reward(observation, action):
 REWARDS = (constant_reward, limb_mean_reward, matching_reward)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("terminated, expected", [(True, 1.0), (False, 2.0)])
 def test_critic_learns_the_value_of_a_constant_reward(terminated, expected):
     """Terminal: Q = 1. Truncated (bootstrapping), discount 0.5: Q = 1 / (1 - 0.5) = 2."""
@@ -140,6 +141,7 @@ def test_critic_learns_the_value_of_a_constant_reward(terminated, expected):
     assert float(metrics["critic_loss"][-100:].mean()) < float(metrics["critic_loss"][:100].mean())
 
 
+@pytest.mark.slow
 def test_a_distributional_critic_learns_the_values_and_the_actor_the_best_action_from_it():
     """C51 (21 atoms on [-2, 3]): the constant reward's bootstrapped Q (2: the atoms moved by the reward and
     shrunk by the discount), and the best action through the distribution's mean. The two runs share one
@@ -170,6 +172,7 @@ def test_the_projection_keeps_probability_and_mean_and_clips_to_the_support():
     np.testing.assert_allclose(beyond, [0.0, 0.0, 0.0, 0.0, 1.0], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_critic_learns_an_observation_dependent_value():
     td3 = learner()
     _, state, _, probe = train(td3, limb_mean_reward, True, 1500)
@@ -286,6 +289,7 @@ def test_the_action_penalty_adds_the_mean_square_of_the_motors_pre_tanh_outputs(
     assert float(loss) == pytest.approx(-values.mean(), rel=1e-5)
 
 
+@pytest.mark.slow
 def test_the_action_penalty_holds_the_policy_off_its_bounds_where_the_critic_pushes_it():
     """Reward: the mean action over a body's L real limbs (terminal), so Q = that mean and each motor's best
     action is tanh's bound. Without a penalty the policy saturates; with weight w, each motor's output u

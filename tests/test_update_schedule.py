@@ -138,6 +138,7 @@ def seeded(learners: list[LearnerState], buffers: list[ReplayBuffer]) -> tuple[L
     return learner, stacked(buffers)
 
 
+@pytest.mark.slow
 def test_the_per_body_scan_is_the_reference_loop_of_one_task_updates():
     initial = LEARNER.init(jax.random.PRNGKey(0))
     buffer = random_buffer(jax.random.PRNGKey(1), rows=16)

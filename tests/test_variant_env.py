@@ -52,6 +52,7 @@ def test_each_variant_steps_as_mujoco_c_steps_its_own_file(tmp_path):
         assert errors["spread"] > 1e-3 or body == "hopper_3 alone", (body, "the variants should move apart")
 
 
+@pytest.mark.slow
 def test_the_program_does_not_grow_with_the_number_of_variants(tmp_path):
     """The step of 8 copies lowers to the same program whether they run 2 or 64 variants: the variants'
     numbers are inputs; the nominal body's are the constants. It traces once."""
@@ -83,6 +84,7 @@ def test_a_body_of_another_tree_is_not_a_variant(tmp_path):
         BodyEnv("hopper_3").variant_table()
 
 
+@pytest.mark.slow
 def test_copies_of_a_body_run_its_variants_in_turn_and_keep_them_across_resets(tmp_path):
     """Copy j of every run runs variant j mod k, and still does after its episodes end and restart."""
     variants = write_variants("walker_2_main", 2, Variation(0.3), tmp_path)
@@ -101,6 +103,7 @@ def test_copies_of_a_body_run_its_variants_in_turn_and_keep_them_across_resets(t
     np.testing.assert_array_equal(masses, np.broadcast_to(expected, (2, *expected.shape)))
 
 
+@pytest.mark.slow
 def test_a_run_trains_on_variants_and_evaluates_on_held_out_ones(tmp_path, hopper_folder):
     """--variants 2 with 2 copies under the fast preset's settings (the paper preset's run on variants is
     tests/test_sharding.py's): each copy of the run's state holds its own variant (the same in both seeds),
