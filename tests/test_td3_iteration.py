@@ -27,7 +27,7 @@ STRUCTURE = task_set(["hopper_3"], NETWORK, max_limbs=4).structure
 
 
 def tiny_learner() -> tuple[MultiTaskEnv, Learner]:
-    env = MultiTaskEnv(["hopper_3"], copies=2, max_limbs=4)
+    env = MultiTaskEnv(["hopper_3"], copies=2, max_limbs=4, physics="c")
     actor, critic = make_actor_critic(NETWORK, 19)
     return env, Learner(actor, critic, TD3Config(batch_size=8))
 
