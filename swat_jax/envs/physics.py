@@ -55,14 +55,14 @@ def resolve_physics(physics: Physics) -> Implementation:
     """
     if physics not in PHYSICS:
         raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
+    if physics in ("jax", "warp"):
+        return physics
     backend = jax.default_backend()
     if physics == "c" and backend != "cpu":
         raise ValueError(
             f"physics 'c' runs MuJoCo C from programs on the CPU, and JAX's default backend here is "
             f"{backend!r}: use physics 'jax' or 'auto' (MJX on the {backend}), or JAX_PLATFORMS=cpu"
         )
-    if physics != "auto":
-        return physics
     return "c" if backend == "cpu" else "jax"
 
 
