@@ -167,35 +167,35 @@ def test_3d_termination_conditions():
     """Each family's conditions, on states built to break one of them."""
     walker = BodyEnv("3d_walker_7_full", physics="c")
     upright = _state(walker)
-    assert bool(walker.alive_3d(upright.data, upright.data))
+    assert bool(walker.task.alive(upright.data, upright.data))
     for axis, breaks in (("y", True), ("x", True), ("z", False)):  # pitch, roll; heading is free
         qpos = np.asarray(upright.data.qpos).copy()
         qpos[3:7] = _rotation(axis, 1.05)
         tilted = _state(walker, qpos)
-        assert bool(walker.alive_3d(tilted.data, upright.data)) != breaks, "read at the step's start"
-        assert bool(walker.alive_3d(upright.data, tilted.data)), axis
+        assert bool(walker.task.alive(tilted.data, upright.data)) != breaks, "read at the step's start"
+        assert bool(walker.task.alive(upright.data, tilted.data)), axis
 
     hopper = BodyEnv("3d_hopper_5_full", physics="c")
     standing = _state(hopper)
     qpos = np.asarray(standing.data.qpos).copy()
     qpos[3:7] = _rotation("x", 1.05)
-    assert not bool(hopper.alive_3d(standing.data, _state(hopper, qpos).data)), "tilted after the step"
+    assert not bool(hopper.task.alive(standing.data, _state(hopper, qpos).data)), "tilted after the step"
     qpos[3:7], qpos[2] = _rotation("z", 2.0), 0.9
-    assert not bool(hopper.alive_3d(standing.data, _state(hopper, qpos).data)), "below 0.95"
+    assert not bool(hopper.task.alive(standing.data, _state(hopper, qpos).data)), "below 0.95"
     qpos[2] = 1.0
-    assert bool(hopper.alive_3d(standing.data, _state(hopper, qpos).data))
+    assert bool(hopper.task.alive(standing.data, _state(hopper, qpos).data))
 
     cheetah = BodyEnv("3d_cheetah_14_full", physics="c")
     moving = _state(cheetah, qvel=np.full(cheetah.mj_model.nv, 0.3))
-    assert bool(cheetah.alive_3d(moving.data, moving.data))
+    assert bool(cheetah.task.alive(moving.data, moving.data))
     still = _state(cheetah, qvel=np.full(cheetah.mj_model.nv, 0.1))
-    assert not bool(cheetah.alive_3d(moving.data, still.data)), "sum(qvel^2) must stay above 1"
+    assert not bool(cheetah.task.alive(moving.data, still.data)), "sum(qvel^2) must stay above 1"
     qpos = np.asarray(moving.data.qpos).copy()
     qpos[2], qpos[3:7] = 0.35, _rotation("y", 0.4)  # low, nose down: a front thigh below 0.26, the torso not
     dipped = _state(cheetah, qpos, np.full(cheetah.mj_model.nv, 0.3))
     thigh = cheetah.morphology.limb_names.index("right_fthigh") + 1
     assert float(dipped.data.xpos[thigh, 2]) < 0.26 < float(dipped.data.qpos[2])
-    assert not bool(cheetah.alive_3d(moving.data, dipped.data))
+    assert not bool(cheetah.task.alive(moving.data, dipped.data))
 
 
 def test_3d_reset_faces_a_random_heading_with_a_target_at_its_distance():

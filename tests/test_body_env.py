@@ -111,7 +111,7 @@ def test_termination_and_reward_follow_the_benchmark_tables(name, physics):
             name,
             qpos[i],
             qvel[i],
-            dict(zip(site_names, after.data.site_xpos[i, env.site_ids, 2], strict=True)),
+            dict(zip(site_names, after.data.site_xpos[i, env.task.site_ids, 2], strict=True)),
         )
         for i in range(SAMPLES)
     ]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import types
 from pathlib import Path
 
 import jax
@@ -306,9 +307,12 @@ def test_observation_reward_and_done_equal_the_original(body):
         )
         expected = recorded(body, "obs_fresh")[index].reshape(env.num_limbs, -1)
         np.testing.assert_allclose(np.asarray(ours), expected, **TOLERANCE, err_msg=f"{body} step {index}")
-        reward = env.reward(recorded(body, "qpos")[index][0], data.qpos[0], data.ctrl)
+        before = types.SimpleNamespace(qpos=recorded(body, "qpos")[index])
+        reward = env.task.reward(before, data)
         np.testing.assert_allclose(float(reward), recorded(body, "reward")[index], **TOLERANCE)
-        assert bool(~env.alive(data)) == bool(recorded(body, "done")[index]), f"{body} step {index}: done"
+        assert bool(~env.task.alive(before, data)) == bool(recorded(body, "done")[index]), (
+            f"{body} step {index}: done"
+        )
 
 
 def step_from_the_original_state(env, data, body: str, index: int) -> None:
@@ -361,7 +365,9 @@ def test_stale_kinematics_give_the_observation_the_original_step_returns(body):
         )
         expected = recorded(body, "obs")[index].reshape(env.num_limbs, -1)
         np.testing.assert_allclose(np.asarray(ours), expected, **TOLERANCE, err_msg=f"{body} step {index}")
-        assert bool(~env.alive(data)) == bool(recorded(body, "done")[index]), f"{body} step {index}: done"
+        assert bool(~env.task.alive(data, data)) == bool(recorded(body, "done")[index]), (
+            f"{body} step {index}: done"
+        )
 
 
 @pytest.mark.slow

@@ -2,6 +2,8 @@
 
 - body.py: one body as a functional environment, ``reset(rng) -> state``, ``step(state, action) -> state``;
   with variants of the body, one program steps them all (``Variant``).
+- tasks.py: what a body is asked to do (run forward; in 3D walk to a target): reward, termination and what an
+  episode carries besides the physics, one object per body with the same methods for every kind.
 - multi_task.py: K bodies x n copies in one jitted step, padded to one limb count, automatic resets.
 - observation.py: the per-limb observation (the benchmark's table, docs/bodies-and-environments.md "Environments") as a pure function,
   in NumPy or jax.numpy (it imports no jax: a controller without JAX uses it).

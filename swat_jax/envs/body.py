@@ -4,8 +4,9 @@ Exactly the modular-locomotion benchmark (docs/bodies-and-environments.md, "Envi
 family's reward, termination and reset noise (swat_jax/morphology/families.py), and the 1000-step time
 limit reported as truncation, not termination. One action per limb and hinge slot ([n] planar, [n, 3]
 in 3D); the torso's are ignored and the others reach their motors through the limb-to-motor map,
-clipped to [-1, 1]. A body of a 3D family (SGRL's benchmark) walks toward a target point
-(:mod:`swat_jax.envs.walk_to_target`), which its state carries.
+clipped to [-1, 1]. The body's task (:mod:`swat_jax.envs.tasks`) gives its reward and termination: a
+planar body runs forward, a body of a 3D family (SGRL's benchmark) walks toward a target point, which its
+state carries.
 
 Two decisions beyond the benchmark text, both documented in docs/bodies-and-environments.md and docs/fidelity.md:
 - Observations are computed from the kinematics of the state after the step, or, with
@@ -40,17 +41,7 @@ from swat_jax.envs.observation import (
 )
 from swat_jax.envs.physics import ModelFields, Physics, Simulator, differing_fields, resolve_physics
 from swat_jax.envs.quiet_mjx import mjx
-from swat_jax.envs.walk_to_target import (
-    FREE_QUATERNION,
-    heading_pitch_roll,
-    heading_quaternion,
-    heading_velocity,
-    new_target,
-    next_target,
-    progress,
-    raw_key,
-    tilt,
-)
+from swat_jax.envs.tasks import BOUNDED_STATE_LIMIT, TargetState, Task, body_task
 from swat_jax.morphology.mjcf import compile_model, load
 from swat_jax.morphology.types import Morphology
 
@@ -59,10 +50,6 @@ __all__ = ["BOUNDED_STATE_LIMIT", "EXPLOSION_SPEED", "BodyEnv", "EnvState", "Phy
 PhysicsData = Union["mjx.Data", CData]
 """A simulator state: MJX's on physics "jax" and "warp", :class:`~swat_jax.envs.c_physics.CData` on "c"
 (the same field names for what the environment reads)."""
-
-BOUNDED_STATE_LIMIT = 100.0
-"""abs(qpos) (the torso's position coordinates excepted) and abs(qvel) stay below this for bodies with
-``Termination.bounded_state``."""
 
 
 @struct.dataclass
@@ -169,10 +156,10 @@ class BodyEnv:
         models = [compile_model(variant) for variant in self.variants] or [compile_model(self.morphology)]
         self.mj_model: mujoco.MjModel = models[0]
         """The compiled model whose numbers are the program's constants: the body's, or its first variant's."""
-        self.task = self.morphology.family.target
-        """The 3D task (:class:`~swat_jax.morphology.types.Target`); None for a planar body."""
+        self.task: Task = body_task(self.morphology, self.mj_model)
+        """What the body is asked to do: its reward, termination and targets (:mod:`swat_jax.envs.tasks`)."""
         self.simulator: Simulator | CSimulator = (
-            CSimulator(models, self.morphology.name, joint_axes=self.task is not None, shards=shards)
+            CSimulator(models, self.morphology.name, joint_axes=self.task.reads_joint_axes, shards=shards)
             if physics == "c"
             else Simulator(self.mj_model, physics, worlds)
         )
@@ -183,22 +170,7 @@ class BodyEnv:
             stale_kinematics=stale_kinematics,
         )
         """The body's constants as a controller outside JAX reads them (:mod:`swat_jax.envs.controller`)."""
-        self.height_limbs = np.array(
-            [
-                self.morphology.limb_names.index(name)
-                for name in self.morphology.family.termination.height_bodies
-                if name in self.morphology.limb_names
-            ],
-            np.int32,
-        )
         self._variant_table = self._stack_variants(models) if self.variants else None
-        self.site_ids = np.array(
-            [
-                mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, name)
-                for name, _ in self.morphology.family.termination.site_min_heights
-            ],
-            np.int32,
-        )
 
     @property
     def layout(self) -> ObservationLayout:
@@ -274,19 +246,11 @@ class BodyEnv:
 
     def new_episode(
         self, rng: jax.Array, variant: Variant | None = None
-    ) -> tuple[PhysicsData, tuple[jax.Array, jax.Array] | None]:
-        """What an episode starts from: :meth:`initial_data` (kinematics not computed) and, in 3D, its
-        target (:meth:`first_target`); None for a planar body."""
-        if self.task is None:
-            return self.initial_data(rng, variant), None
-        pose_key, target_key = jax.random.split(rng)
-        return self.initial_data(pose_key, variant), self.first_target(target_key)
-
-    def first_target(self, rng: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """3D: (target [2], key [2] uint32) of a new episode: a point at a random direction from the origin,
-        and the key that draws the next."""
-        draw, key = jax.random.split(rng)
-        return new_target(self.task, draw, jnp.zeros(2, jnp.float32)).astype(jnp.float32), raw_key(key)
+    ) -> tuple[PhysicsData, TargetState | None]:
+        """What an episode starts from: :meth:`initial_data` (kinematics not computed) and what the task
+        carries besides it (in 3D the first target and the key of the next; None for a planar body)."""
+        pose_key, target = self.task.episode(rng)
+        return self.initial_data(pose_key, variant), target
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Apply ``action`` (:attr:`action_shape`: one value per limb and hinge slot, the torso's ignored) for
@@ -297,11 +261,7 @@ class BodyEnv:
     def initial_data(self, rng: jax.Array, variant: Variant | None = None) -> PhysicsData:
         """The initial pose plus reset noise; derived quantities not yet computed (see :meth:`kinematics`)."""
         noise = self.morphology.family.reset_noise
-        qpos0 = self.simulator.qpos0(self._row(variant))
-        if self.task is not None:
-            rng, heading_key = jax.random.split(rng)
-            heading = jax.random.uniform(heading_key, (), minval=-jnp.pi, maxval=jnp.pi)
-            qpos0 = qpos0.at[FREE_QUATERNION].set(heading_quaternion(heading).astype(qpos0.dtype))
+        qpos0, rng = self.task.orient(self.simulator.qpos0(self._row(variant)), rng)
         position_key, velocity_key = jax.random.split(rng)
         qpos = qpos0 + jax.random.uniform(
             position_key, (self.mj_model.nq,), minval=-noise.qpos_uniform, maxval=noise.qpos_uniform
@@ -338,10 +298,10 @@ class BodyEnv:
         self,
         data: PhysicsData,
         variant: Variant | None = None,
-        target: tuple[jax.Array, jax.Array] | None = None,
+        target: TargetState | None = None,
     ) -> EnvState:
         """The state of a new episode at ``data`` (kinematics computed) of ``variant``; in 3D with ``target``
-        (:meth:`first_target`)."""
+        (:meth:`new_episode`'s)."""
         zero = jnp.zeros((), jnp.float32)
         point, key = target if target is not None else (None, None)
         return EnvState(
@@ -361,16 +321,10 @@ class BodyEnv:
         """The state after ``state`` was simulated to ``data`` (kinematics computed): reward, termination,
         truncation and observation of the step."""
         unstable = _unstable(data)
-        if self.task is None:
-            earned = self.reward(state.data.qpos[0], data.qpos[0], data.ctrl)
-            alive = self.alive(data)
-            target, target_key = None, None
-        else:
-            earned = self.reward_3d(state.data, data, state.target)
-            alive = self.alive_3d(state.data, data)
-            target, target_key = next_target(self.task, state.target, state.target_key, data.xpos[1, :2])
+        earned = self.task.reward(state.data, data, state.target)
+        terminated = unstable | ~self.task.alive(state.data, data)
+        target, target_key = self.task.advance(state.target, state.target_key, data)
         reward = jnp.where(unstable, 0.0, earned).astype(jnp.float32)
-        terminated = unstable | ~alive
         length = state.episode_length + 1
         return EnvState(
             data=data,
@@ -404,69 +358,6 @@ class BodyEnv:
             gravity=self.gravity,
             xp=jnp,
         )
-
-    def reward(self, x_before: jax.Array, x_after: jax.Array, control: jax.Array) -> jax.Array:
-        """forward_weight * dx/dt + alive_bonus - control_cost * sum(a^2) (the family's reward, morphology/families.py)."""
-        reward = self.morphology.family.reward
-        forward = (x_after - x_before) / self.morphology.control_dt
-        return (
-            reward.forward_weight * forward + reward.alive_bonus - reward.control_cost * jnp.sum(control**2)
-        )
-
-    def reward_3d(self, before: PhysicsData, after: PhysicsData, target: jax.Array) -> jax.Array:
-        """3D: forward_weight * (rate of approach to ``target``) + heading_weight * (velocity along the
-        torso's heading at the start of the step) + alive_bonus - control_cost * sum(a^2), from the torso's
-        frame positions before and after the step (:mod:`~swat_jax.envs.walk_to_target`)."""
-        reward = self.morphology.family.reward
-        dt = self.morphology.control_dt
-        start, end = before.xpos[1, :2], after.xpos[1, :2]
-        value = reward.forward_weight * progress(target, start, end, dt)
-        if reward.heading_weight:
-            value += reward.heading_weight * heading_velocity(before.qpos[FREE_QUATERNION], start, end, dt)
-        return value + reward.alive_bonus - reward.control_cost * jnp.sum(after.ctrl**2)
-
-    def alive_3d(self, before: PhysicsData, after: PhysicsData) -> jax.Array:
-        """3D: [] bool, every termination condition of the family holds after the step (pitch and roll:
-        at its start), morphology/families.py."""
-        termination = self.morphology.family.termination
-        height = after.qpos[2]
-        if len(self.height_limbs):
-            height = jnp.minimum(height, jnp.min(after.xpos[self.height_limbs + 1, 2]))
-        alive = jnp.ones((), bool)
-        if termination.height is not None:
-            low, high = termination.height
-            alive &= (height > low) & (height < high)
-        if termination.max_tilt is not None:
-            alive &= jnp.abs(tilt(after.qpos[FREE_QUATERNION])) < termination.max_tilt
-        if termination.max_pitch_roll is not None:
-            _, pitch, roll = heading_pitch_roll(before.qpos[FREE_QUATERNION])
-            alive &= (jnp.abs(pitch) < termination.max_pitch_roll) & (
-                jnp.abs(roll) < termination.max_pitch_roll
-            )
-        if termination.bounded_state:
-            alive &= jnp.all(jnp.abs(after.qpos[3:]) < BOUNDED_STATE_LIMIT)
-            alive &= jnp.all(jnp.abs(after.qvel) < BOUNDED_STATE_LIMIT)
-        if termination.min_speed_squared is not None:
-            alive &= jnp.sum(after.qvel**2) > termination.min_speed_squared
-        return alive
-
-    def alive(self, data: PhysicsData) -> jax.Array:
-        """[] bool: every termination condition of the body holds (the family's termination, morphology/families.py); ``data``
-        may also be MuJoCo C's ``MjData`` (qpos, qvel and site_xpos are read)."""
-        termination = self.morphology.family.termination
-        alive = jnp.ones((), bool)
-        if termination.height is not None:
-            low, high = termination.height
-            alive &= (data.qpos[1] > low) & (data.qpos[1] < high)
-        if termination.max_abs_angle is not None:
-            alive &= jnp.abs(data.qpos[2]) < termination.max_abs_angle
-        if termination.bounded_state:
-            alive &= jnp.all(jnp.abs(data.qpos[2:]) < BOUNDED_STATE_LIMIT)
-            alive &= jnp.all(jnp.abs(data.qvel) < BOUNDED_STATE_LIMIT)
-        if len(self.site_ids):
-            minimum = np.array([z for _, z in termination.site_min_heights], np.float32)
-            alive &= jnp.all(data.site_xpos[self.site_ids, 2] > minimum)
-        return alive
 
 
 def _unstable(data: PhysicsData) -> jax.Array:
