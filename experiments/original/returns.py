@@ -124,3 +124,13 @@ def time_to_reach(curves: Sequence[SeedCurves], target: float) -> float | None:
         if np.mean(values) >= target:
             return float(np.mean([c.seconds[step] for c in curves if step in c.seconds]))
     return None
+
+
+def ratio_interval(a: Final, b: Final, level: float = 0.90) -> tuple[float, float]:
+    """The ``level`` confidence interval of ``b``'s mean over ``a``'s, by the delta method (the ratio's
+    standard error from both means' relative standard errors, Welch's degrees of freedom)."""
+    _, freedom, _ = welch_statistic(a, b)
+    ratio = b.mean / a.mean
+    error = abs(ratio) * math.hypot(a.standard_error / a.mean, b.standard_error / b.mean)
+    half = float(stats.t.ppf(0.5 + level / 2, freedom)) * error
+    return ratio - half, ratio + half
