@@ -18,7 +18,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from experiments.paper import (
     GridError,
@@ -336,27 +336,58 @@ def side_by_side(seeds: Sequence[tuple[Start, Finish]], parallel: int) -> None:
             process.terminate()
 
 
+class ForeignRun(Protocol):
+    """One seed of another implementation's trainer (:class:`OriginalRun`, SGRL's ``SgrlRun``)."""
+
+    @property
+    def name(self) -> str: ...
+
+    def finished(self) -> bool: ...
+
+
+def train_foreign(
+    who: str,
+    runs: Sequence[ForeignRun],
+    start: Callable[[Any, int], subprocess.Popen],
+    finish: Callable[[Any, int, float], None],
+    prepare: Callable[[], None],
+    parallel: int,
+    timing: tuple[Path, str],
+) -> None:
+    """Run every unfinished seed of another trainer (``who``: its name in the messages) from its start,
+    ``parallel`` at a time: ``prepare()`` once before the first, ``start(run, slot)`` and ``finish(run,
+    status, seconds)`` each (:func:`side_by_side`); the wall clock of them all added to ``timings.json`` in
+    ``timing`` (the folder and the key)."""
+    pending = []
+    for run in runs:
+        if run.finished():
+            print(f"{who} {run.name}: done, kept", file=sys.stderr)
+        else:
+            pending.append(run)
+    if not pending:
+        return
+    prepare()
+    began = time.perf_counter()
+    try:
+        side_by_side(
+            [(functools.partial(start, run), functools.partial(finish, run)) for run in pending], parallel
+        )
+    finally:
+        add_timing(*timing, time.perf_counter() - began)
+
+
 def train_original(runs: Sequence[OriginalRun], original: Original, out: Path) -> None:
     """Run every unfinished seed, ``original.parallel`` at a time, each with one torch thread; copy its
     stat.json, args.txt and log into OUT; add the wall clock to ``timings.json``."""
-    pending = [run for run in runs if not run.finished()]
-    for run in runs:
-        if run.finished():
-            print(f"original {run.name}: done, kept", file=sys.stderr)
-    if not pending:
-        return
-    prepare_tree(original)
-    start = time.perf_counter()
-    try:
-        side_by_side(
-            [
-                (functools.partial(_start_original, run, original), functools.partial(_collect_original, run))
-                for run in pending
-            ],
-            original.parallel,
-        )
-    finally:
-        add_timing(out, f"original-{runs[0].environment_set}", time.perf_counter() - start)
+    train_foreign(
+        "original",
+        runs,
+        lambda run, slot: _start_original(run, original, slot),
+        _collect_original,
+        lambda: prepare_tree(original),
+        original.parallel,
+        (out, f"original-{runs[0].environment_set}"),
+    )
 
 
 SINGLE_THREAD_XLA = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"

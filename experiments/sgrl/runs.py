@@ -11,7 +11,6 @@ transition and one per update, and it stops at the first epoch end (every 1,000 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import os
@@ -19,12 +18,11 @@ import shlex
 import shutil
 import subprocess
 import sys
-import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from experiments.original.runs import CHUNK, Settings, paper_config, side_by_side
-from experiments.paper import GridError, RunSpec, add_timing
+from experiments.original.runs import CHUNK, Settings, paper_config, train_foreign
+from experiments.paper import GridError, RunSpec
 from swat_jax.morphology import get_set
 
 SGRL = "SGRL (PyTorch)"
@@ -316,21 +314,10 @@ def sgrl_runs(out: Path, scale: SgrlScale, environment_set: str) -> list[SgrlRun
 def train_sgrl(runs: Sequence[SgrlRun], sgrl: Sgrl, out: Path) -> None:
     """Run every unfinished seed from its start, ``sgrl.parallel`` at a time, each with one torch thread on no
     core in particular; keep its recorded log, SGRL's ``logs.txt`` and ``parameters.txt`` and its wall clock."""
-    for run in runs:
-        if run.finished():
-            print(f"SGRL {run.name}: done, kept", file=sys.stderr)
-    pending = [run for run in runs if not run.finished()]
-    if not pending:
-        return
-    sgrl.prepare()
-    start = time.perf_counter()
-    try:
-        side_by_side(
-            [(functools.partial(_start, run, sgrl), functools.partial(_collect, run)) for run in pending],
-            sgrl.parallel,
-        )
-    finally:
-        add_timing(out, f"sgrl-{runs[0].name.rsplit('-', 1)[0]}", time.perf_counter() - start)
+    timing = (out, f"sgrl-{runs[0].name.rsplit('-', 1)[0]}")
+    train_foreign(
+        "SGRL", runs, lambda run, slot: _start(run, sgrl, slot), _collect, sgrl.prepare, sgrl.parallel, timing
+    )
 
 
 def _start(run: SgrlRun, sgrl: Sgrl, _slot: int) -> subprocess.Popen:
