@@ -38,6 +38,7 @@ from tqdm import tqdm
 from swat_jax.cli import ERROR_STATUS
 from swat_jax.compilation_cache import CacheSettingError, enable_caches, program_cache_limit
 from swat_jax.networks import param_count
+from swat_jax.runs import formats
 from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo, Checkpoints
 from swat_jax.runs.config import CONFIG_FILE, PRESETS, ConfigError, TrainConfig, flag_values, load_config
 from swat_jax.runs.experiment import Experiment
@@ -623,6 +624,12 @@ def _interrupted_before_training(command: TrainCommand) -> str:
 def parse_command(argv: list[str]) -> tuple[TrainCommand, TrainCommand]:
     """The command ``python -m swat_jax.train ARGV`` asks for, and its defaults (a preset's or a file's)."""
     defaults = _defaults(argv)
+    try:
+        argv, note = formats.with_loop_flag(argv, defaults.iteration.loop)
+    except formats.FormatError as error:
+        raise ConfigError(str(error)) from error
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     return tyro.cli(TrainCommand, args=argv, default=defaults, prog="python -m swat_jax.train"), defaults
 
 

@@ -103,7 +103,7 @@ def tiny_train_config(run_dir: Path, env_dir: Path, network=None, envs=None, **o
         steps=600,
         seeds=2,
         envs=EnvConfig(**{"copies": 2, **(envs or {})}),
-        iteration=IterationConfig(chunk=50, random_steps=100, capacity=1000, rounds=True),
+        iteration=IterationConfig(chunk=50, random_steps=100, capacity=1000, loop="rounds"),
         td3=TD3Config(batch_size=16),
         network=NetworkSizes(**{"width": 16, "layers": 1, "feedforward": 32, **(network or {})}),
         log_interval=200,

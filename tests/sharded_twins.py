@@ -43,7 +43,7 @@ def config(out: Path, folder: Path, name: str, steps: int):
         out / name,
         folder,
         steps=steps,
-        iteration=IterationConfig(chunk=10, random_steps=10, capacity=1000, rounds=True),
+        iteration=IterationConfig(chunk=10, random_steps=10, capacity=1000, loop="rounds"),
         envs={"variants": 2, "variation": 0.3},
         eval_interval=0,
         log_interval=40,

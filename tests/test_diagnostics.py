@@ -129,9 +129,7 @@ def one_hopper():
     actor, critic = make_actor_critic(NETWORK, FEATURES)
     env = MultiTaskEnv(["hopper_3"], copies=1, max_limbs=4, physics="c")
     learner = Learner(actor, critic, TD3Config(batch_size=4))
-    config = IterationConfig(
-        chunk=200, updates=2, random_steps=1000, capacity=512, schedule="all_tasks", rounds=False
-    )
+    config = IterationConfig(chunk=200, updates=2, random_steps=1000, capacity=512, loop="all_tasks")
     return env, tasks.structure, learner, config
 
 

@@ -16,8 +16,8 @@ SNIPPET = re.compile(r"<!-- snippet: (\w+) -->\n```python\n(.*?)```", re.DOTALL)
 TINY_TRAINING = {
     'PRESETS["fast"]': (
         'dataclasses.replace(PRESETS["fast"], envs=dataclasses.replace(PRESETS["fast"].envs, copies=1), '
-        'td3=TD3Config(batch_size=8), iteration=IterationConfig(chunk=16, updates=2, schedule="all_tasks", '
-        "rounds=False, random_steps=16, capacity=256))"
+        'td3=TD3Config(batch_size=8), iteration=IterationConfig(chunk=16, updates=2, loop="all_tasks", '
+        "random_steps=16, capacity=256))"
     ),
     "steps=20_000": (
         "steps=1008, network=NetworkSizes(width=16, layers=1, feedforward=32, max_traversal_positions=3)"

@@ -12,6 +12,7 @@ import pytest
 from swat_jax.runs.checkpoint import CheckpointError, CheckpointInfo
 from swat_jax.runs.config import PRESETS, ConfigError, TrainConfig, load_config
 from swat_jax.runs.formats import CHECKPOINT_VERSION, CONFIG_VERSION
+from swat_jax.train import parse_command
 
 STORED = Path(__file__).parent / "data" / "formats"
 
@@ -46,14 +47,18 @@ def test_a_flat_config_json_moves_its_fields_into_their_groups():
     assert config.envs.torso_relative_x and not config.envs.stale_kinematics
     assert not config.network.reference_inorder and config.network.width is None
     assert config.network.initialisation == "flax"
-    assert not config.iteration.round_updates and not config.iteration.diagnostics
+    assert config.iteration.loop == "all_tasks" and not config.iteration.diagnostics
 
 
 def test_a_run_written_before_the_loop_switches_resumes_with_the_loop_it_had():
     """Without round_updates, reset_next_state and capacity_all (every run before them): updates after
     every chunk, time-limit next states as reached, 500K rows per body."""
     iteration = load_config(STORED / "config_v1_before_loop_switches.json").iteration
-    assert not iteration.round_updates and not iteration.reset_next_state and iteration.capacity_all is None
+    assert (
+        iteration.loop == "rounds_chunked"
+        and not iteration.reset_next_state
+        and iteration.capacity_all is None
+    )
     assert load_config(STORED / "config_v1_before_loop_switches.json").network.initialisation == "original"
 
 
@@ -61,7 +66,7 @@ def test_a_run_written_before_the_diagnostics_resumes_without_them():
     """Its checkpoints hold no episode values: it loads with the diagnostics off, so its state has the
     arrays its checkpoints hold (a new run has them on)."""
     config = load_config(STORED / "config_v1_before_diagnostics.json")
-    assert config.iteration.diagnostics is False and config.iteration.round_updates is True
+    assert config.iteration.diagnostics is False and config.iteration.loop == "rounds"
     assert PRESETS["paper"].iteration.diagnostics is True
 
 
@@ -73,9 +78,65 @@ def test_a_fast_run_written_before_the_action_penalty_resumes_without_it():
     assert config.iteration.diagnostics is True
 
 
+@pytest.mark.parametrize("preset", ["paper", "intended"])
+def test_a_version_2_file_has_its_three_loop_fields_read_as_one_loop(preset):
+    """Version 2 held the loop in rounds, round_updates and schedule (tests/data/formats/config_v2_*.json:
+    the presets of then); it reads as today's preset, whose loop is one field."""
+    assert load_config(STORED / f"config_v2_{preset}.json") == dataclasses.replace(
+        PRESETS[preset], env="hopper"
+    )
+
+
+@pytest.mark.parametrize(
+    ("fields", "loop"),
+    [
+        ({"rounds": False, "schedule": "original"}, "per_body"),
+        ({"rounds": False}, "per_body"),
+        ({"round_updates": False}, "rounds_chunked"),
+        ({}, "rounds"),
+    ],
+)
+def test_each_version_2_combination_is_its_loop_and_a_refused_one_is_named(tmp_path, fields, loop):
+    stored = json.loads((STORED / "config_v2_paper.json").read_text())
+    for name in ("rounds", "round_updates", "schedule"):
+        del stored["iteration"][name]
+    (tmp_path / "config.json").write_text(
+        json.dumps({**stored, "iteration": {**stored["iteration"], **fields}})
+    )
+    assert load_config(tmp_path / "config.json").iteration.loop == loop
+    refused = {**stored, "iteration": {**stored["iteration"], "schedule": "all_tasks"}}
+    (tmp_path / "config.json").write_text(json.dumps(refused))
+    with pytest.raises(
+        ConfigError, match=r"config.json: .*rounds True and schedule 'all_tasks' are no training loop"
+    ):
+        load_config(tmp_path / "config.json")
+
+
+@pytest.mark.parametrize(
+    ("argv", "loop"),
+    [
+        (["--iteration.no-round-updates"], "rounds_chunked"),
+        (["--preset", "intended", "--iteration.no-rounds"], "per_body"),
+        (["--preset", "intended", "--iteration.no-rounds", "--iteration.schedule=all_tasks"], "all_tasks"),
+        (["--preset", "intended", "--iteration.schedule", "original", "--iteration.round-updates"], "rounds"),
+    ],
+)
+def test_the_old_loop_flags_are_read_for_one_release_with_a_line_saying_so(capsys, argv, loop):
+    command, _ = parse_command(argv)
+    assert command.iteration.loop == loop
+    assert f"old names, read for one release; give --iteration.loop {loop} instead" in capsys.readouterr().err
+
+
+def test_old_loop_flags_that_make_no_loop_are_refused_with_the_loops():
+    with pytest.raises(
+        ConfigError, match=r"rounds True and schedule 'all_tasks' are no training loop.*per_body"
+    ):
+        parse_command(["--iteration.schedule", "all_tasks"])
+
+
 def test_a_config_json_of_a_newer_version_is_refused_with_both_versions():
     with pytest.raises(
-        ConfigError, match=r"config_newer.json: format version 3 is newer than this swat_jax reads \(2\)"
+        ConfigError, match=r"config_newer.json: format version 4 is newer than this swat_jax reads \(3\)"
     ):
         load_config(STORED / "config_newer.json")
 

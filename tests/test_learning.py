@@ -74,7 +74,7 @@ def test_td3_on_hopper_3_beats_the_random_policy(hopper_folder, tmp_path):
         seeds=3,
         envs={"copies": 4},
         iteration=IterationConfig(
-            chunk=50, updates=100, random_steps=1000, capacity=16_000, rounds=False, reset_next_state=False
+            chunk=50, updates=100, random_steps=1000, capacity=16_000, loop="per_body", reset_next_state=False
         ),
         td3=TD3Config(batch_size=50, learning_rate=1e-3),
         network={"width": 32, "feedforward": 64},

@@ -123,7 +123,7 @@ def test_the_critic_bootstraps_with_the_sampled_discount():
 
 def test_n_step_needs_the_all_task_schedule():
     paper = PRESETS["paper"]
-    with pytest.raises(ConfigError, match=r"--td3\.n-step 3 .*--iteration\.schedule all_tasks"):
+    with pytest.raises(ConfigError, match=r"--td3\.n-step 3 .*--iteration\.loop all_tasks"):
         dataclasses.replace(paper, td3=dataclasses.replace(paper.td3, n_step=3))
     with pytest.raises(ConfigError, match=r"--td3\.n-step must be a positive"):
         dataclasses.replace(paper, td3=dataclasses.replace(paper.td3, n_step=0))
@@ -136,9 +136,7 @@ def test_a_training_run_stores_episode_ends_in_each_copys_consecutive_rows():
     continues from the state that step reached unless the episode ended there (then a new episode starts);
     the updates run on n-step batches."""
     copies, chunk = 3, 40
-    config = IterationConfig(
-        chunk=chunk, updates=2, random_steps=1_000, capacity=256, schedule="all_tasks", rounds=False
-    )
+    config = IterationConfig(chunk=chunk, updates=2, random_steps=1_000, capacity=256, loop="all_tasks")
     env = MultiTaskEnv(["hopper_3"], copies=copies, max_limbs=4, physics="c")
     network = network_config("amorpheus", width=8, layers=1, feedforward=16)
     actor, critic = make_actor_critic(network, 19)

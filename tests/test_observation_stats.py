@@ -86,9 +86,7 @@ def test_training_accumulates_the_statistics_in_all_four_networks_and_no_gradien
     env = MultiTaskEnv(["hopper_3"], copies=2, max_limbs=5, physics="c")
     actor, critic = make_actor_critic(NETWORK, 19)
     learner = Learner(actor, critic, TD3Config(batch_size=8))
-    config = IterationConfig(
-        chunk=4, updates=3, random_steps=8, capacity=64, schedule="all_tasks", rounds=False
-    )
+    config = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, loop="all_tasks")
     iteration = jax.jit(make_train_iteration(env, STRUCTURE, learner, config))
     state = init_train_state(env, learner, config, seed_keys(0, 2))
     before = state.learner.actor_params["params"]

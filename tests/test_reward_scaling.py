@@ -123,9 +123,7 @@ def iterating(two_bodies):
     structure, actor, critic = two_bodies
     env = MultiTaskEnv(BODIES, copies=2, max_limbs=5, physics="c")
     learner = Learner(actor, critic, TD3Config(batch_size=4, reward_scaling=True))
-    config = IterationConfig(
-        chunk=6, updates=2, random_steps=100, capacity=64, schedule="all_tasks", rounds=False
-    )
+    config = IterationConfig(chunk=6, updates=2, random_steps=100, capacity=64, loop="all_tasks")
     return init_train_state(env, learner, config, seed_keys(0, 1)), make_train_iteration(
         env, structure, learner, config
     )
@@ -181,7 +179,7 @@ def test_reward_scaling_needs_the_all_task_update(two_bodies):
     with pytest.raises(ValueError, match=r"reward scaling .* needs the all_tasks schedule"):
         make_update_phase(structure, learner, "original", updates=2, seeds=1)
     paper, fast = PRESETS["paper"], PRESETS["fast"]
-    with pytest.raises(ConfigError, match=r"--td3\.reward-scaling .* add --iteration\.schedule all_tasks"):
+    with pytest.raises(ConfigError, match=r"--td3\.reward-scaling .* add --iteration\.loop all_tasks"):
         dataclasses.replace(paper, td3=dataclasses.replace(paper.td3, reward_scaling=True))
     assert dataclasses.replace(
         fast, td3=dataclasses.replace(fast.td3, reward_scaling=True)

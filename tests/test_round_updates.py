@@ -74,8 +74,8 @@ CHUNK = 25
 def rounds_run():
     """Two seeds, two bodies with a 30-step time limit (rounds of at most 30 steps) and chunks of 25: most
     iterations hold a round's end, some none. Random actions for the first 10 counted steps per body."""
-    config = IterationConfig(chunk=CHUNK, updates=1, random_steps=10, capacity=4096, rounds=True)
-    assert config.round_updates and config.reset_next_state, "the defaults are the original's"
+    config = IterationConfig(chunk=CHUNK, updates=1, random_steps=10, capacity=4096, loop="rounds")
+    assert config.loop == "rounds" and config.reset_next_state, "the defaults are the original's"
     return run_iterations(BODIES, config, seeds=2, iterations=10)
 
 
@@ -123,7 +123,7 @@ def test_time_limit_transitions_bootstrap_from_the_next_episode_as_the_original_
     original's vectorised environment has already reset the copy), or with the switch off the one the step
     reached; every other transition's next state is the next transition's observation."""
     config = IterationConfig(
-        chunk=12, updates=1, random_steps=1000, capacity=64, rounds=True, reset_next_state=reset_next_state
+        chunk=12, updates=1, random_steps=1000, capacity=64, loop="rounds", reset_next_state=reset_next_state
     )
     states, _ = run_iterations((short_lived("hopper_3", 5),), config, seeds=1, iterations=2)
     data = states[-1].buffer.data
@@ -139,10 +139,10 @@ def test_time_limit_transitions_bootstrap_from_the_next_episode_as_the_original_
 
 def test_the_paper_preset_keeps_the_original_loop_and_the_others_do_not():
     paper = PRESETS["paper"].iteration
-    assert paper.rounds and paper.round_updates and paper.reset_next_state and paper.capacity_all == 4_000_000
+    assert paper.loop == "rounds" and paper.reset_next_state and paper.capacity_all == 4_000_000
     for name in ("intended", "fast"):
         other = PRESETS[name].iteration
-        assert not other.round_updates and not other.reset_next_state and other.capacity_all is None, name
+        assert other.loop != "rounds" and not other.reset_next_state and other.capacity_all is None, name
 
 
 @pytest.mark.parametrize("bodies, rows", [(8, 500_000), (12, 333_333), (13, 307_692), (25, 160_000)])

@@ -18,7 +18,7 @@ from swat_jax.td3.iteration import (
 )
 from swat_jax.td3.learner import Learner, TD3Config
 
-CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, schedule="all_tasks", rounds=False)
+CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, loop="all_tasks")
 """Every update on a batch from every task (tests/test_update_schedule.py tests the original schedule)."""
 
 
@@ -101,7 +101,7 @@ def test_each_copy_explores_with_its_own_noise_scale():
     exploration_noise (copy 0, here 0: the policy itself) to the maximum (FastTD3's per-environment noise)."""
     copies, chunk = 4, 40
     config = IterationConfig(
-        chunk=chunk, updates=1, random_steps=0, capacity=256, schedule="all_tasks", rounds=False,
+        chunk=chunk, updates=1, random_steps=0, capacity=256, loop="all_tasks",
         exploration_noise=0.0, exploration_noise_max=0.3,
     )  # fmt: skip
     np.testing.assert_allclose(exploration_scales(config, copies), [0.0, 0.1, 0.2, 0.3], atol=1e-7)

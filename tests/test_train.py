@@ -496,9 +496,7 @@ def test_presets_follow_the_budget_convention():
     assert paper == TrainConfig(), "the paper preset is the defaults, the base the others differ from"
     assert paper.envs.copies == 1 and paper.iteration.updates == paper.iteration.chunk, "1 update per step"
     assert paper.td3.batch_size == 100 and paper.iteration.capacity == 500_000
-    assert fast.envs.copies > 1 and fast.iteration.schedule == "all_tasks", (
-        "parallel copies, all-body updates"
-    )
+    assert fast.envs.copies > 1 and fast.iteration.loop == "all_tasks", "parallel copies, all-body updates"
     assert paper.steps_per_iteration(num_bodies=5) == 5 * 100, "steps count every body"
 
 
@@ -516,7 +514,7 @@ def test_the_intended_preset_is_the_paper_preset_with_every_quirk_fixed():
     assert quirks(paper) == original
     assert quirks(intended) == quirks(fast) == {name: not value for name, value in original.items()}
     loop = dataclasses.replace(
-        paper.iteration, round_updates=False, reset_next_state=False, capacity_all=None
+        paper.iteration, loop="rounds_chunked", reset_next_state=False, capacity_all=None
     )
     assert intended.iteration == loop, "swat_jax's training loop where the original's has quirks"
     assert (
@@ -611,7 +609,7 @@ def test_make_train_passes_options_through():
 def test_replay_too_large_stops_before_anything_is_written(hopper_folder, tmp_path):
     """Too large per body, or (the original's cap on all bodies, the paper preset's) in all: the flag to lower."""
     huge = IterationConfig(
-        chunk=50, updates=20, random_steps=100, capacity=10**12, capacity_all=None, rounds=False
+        chunk=50, updates=20, random_steps=100, capacity=10**12, capacity_all=None, loop="per_body"
     )
     for iteration, flag in (
         (huge, "capacity"),

@@ -1,4 +1,4 @@
-"""The original update schedule (IterationConfig.schedule): after collecting, body after body takes its run of
+"""The original update schedule (IterationConfig.schedule, of every loop but all_tasks): after collecting, body after body takes its run of
 updates on batches from its own replay ring, the actor stepping at updates 0, 2, ... of every run."""
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ BODIES = ("hopper_3", "cheetah_4_front")
 LIMBS = 4
 FEATURES = 19
 STRUCTURE = pad_structures([load(body) for body in BODIES], max_limbs=LIMBS)
-CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, schedule="original", rounds=False)
+CONFIG = IterationConfig(chunk=4, updates=3, random_steps=8, capacity=64, loop="per_body")
 UPDATES = len(BODIES) * CONFIG.updates
 """Updates per iteration: 3 per body."""
 ACTOR_STEPS = [0, 2, 3, 5]
@@ -197,14 +197,26 @@ def test_with_update_counts_each_seed_takes_its_own_number_of_updates_per_body()
     assert np.asarray(steps).tolist() == [len(BODIES) * CONFIG.updates, len(BODIES)]
 
 
-def test_the_paper_preset_trains_with_the_original_schedule():
-    assert PRESETS["paper"].iteration.schedule == "original" == TrainConfig().iteration.schedule
-    assert PRESETS["fast"].iteration.schedule == "all_tasks"
-    with pytest.raises(ConfigError, match=r"--iteration\.schedule must be one of original, all_tasks"):
-        TrainConfig(iteration=IterationConfig(schedule="per_body"))
-    assert PRESETS["paper"].iteration.rounds and PRESETS["intended"].iteration.rounds
-    assert (
-        TrainConfig().iteration.rounds and IterationConfig().rounds and not PRESETS["fast"].iteration.rounds
+def test_each_preset_trains_in_its_loop_on_its_schedule():
+    loops = {name: preset.iteration for name, preset in PRESETS.items()}
+    assert (loops["paper"].loop, loops["intended"].loop, loops["fast"].loop) == (
+        "rounds",
+        "rounds_chunked",
+        "all_tasks",
     )
-    with pytest.raises(ConfigError, match=r"--iteration\.rounds .* add --iteration\.schedule original"):
-        TrainConfig(iteration=IterationConfig(schedule="all_tasks", rounds=True))
+    assert TrainConfig().iteration == loops["paper"] and IterationConfig().loop == "rounds"
+    schedules = {
+        loop: IterationConfig(loop=loop).schedule
+        for loop in ("rounds", "rounds_chunked", "per_body", "all_tasks")
+    }
+    assert schedules == {
+        "rounds": "original",
+        "rounds_chunked": "original",
+        "per_body": "original",
+        "all_tasks": "all_tasks",
+    }
+    assert [IterationConfig(loop=loop).rounds for loop in schedules] == [True, True, False, False]
+    with pytest.raises(
+        ConfigError, match=r"--iteration\.loop must be one of rounds, rounds_chunked, per_body, all_tasks"
+    ):
+        TrainConfig(iteration=IterationConfig(loop="original"))

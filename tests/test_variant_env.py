@@ -112,9 +112,7 @@ def test_a_run_trains_on_variants_and_evaluates_on_held_out_ones(tmp_path, hoppe
         tmp_path / "run",
         hopper_folder,
         preset="fast",
-        iteration=IterationConfig(
-            chunk=50, updates=4, schedule="all_tasks", rounds=False, random_steps=100, capacity=1000
-        ),
+        iteration=IterationConfig(chunk=50, updates=4, loop="all_tasks", random_steps=100, capacity=1000),
         envs={"variants": 2, "variation": 0.3, "torso_relative_x": True, "stale_kinematics": False},
         network={"reference_inorder": False},
         steps=200,

@@ -155,7 +155,7 @@ def main() -> None:
     ]
     if args.collection:
         paper = configured("paper")
-        collection = dataclasses.replace(paper.iteration, rounds=False, updates=1)
+        collection = dataclasses.replace(paper.iteration, loop="per_body", updates=1)
         runs.append(("paper, collection only", dataclasses.replace(paper, iteration=collection)))
     results = []
     for label, config in runs:

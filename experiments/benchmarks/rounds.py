@@ -1,7 +1,7 @@
 """The update phase of one paper-preset iteration with and without lock-step rounds.
 
 The ``original`` schedule runs, body after body, a fixed ``updates`` per body without rounds; with rounds
-(``--iteration.rounds``) each seed takes its own count (its counted steps / bodies), so the loop runs the
+(``--iteration.loop rounds``) each seed takes its own count (its counted steps / bodies), so the loop runs the
 largest seed's count of slots and the other seeds skip the slots past theirs. This times one iteration's
 update phase (``make_update_phase``) on a replay of random rows, for several seeds in one program: the fixed
 ``chunk`` updates per body (the baseline) and per-seed counts, all equal to ``chunk`` and spread below it,

@@ -71,7 +71,7 @@ def arm_config(env: str, seeds: int, preset: Preset | None = None) -> TrainConfi
         seeds=seeds,
         envs=EnvConfig(copies=8),
         network=NetworkSizes(width=32, layers=1, feedforward=64),
-        iteration=IterationConfig(chunk=25, updates=20, rounds=False, random_steps=0, capacity=20_000),
+        iteration=IterationConfig(chunk=25, updates=20, loop="per_body", random_steps=0, capacity=20_000),
         td3=TD3Config(batch_size=100),
     )
 

@@ -6,17 +6,16 @@
 used as the defaults that flags override, written as its differences from the ``paper`` preset, which is
 TrainConfig's defaults:
 
-- ``paper``: the paper's and the reference code's: one environment copy per task, the reference code's
-  lock-step rounds (:attr:`~swat_jax.td3.iteration.IterationConfig.rounds`) and the ``original`` update
-  schedule (:attr:`~swat_jax.td3.iteration.IterationConfig.schedule`): when a round ends, task after
-  task takes (counted steps of the round summed over tasks) / tasks updates on batches of 100 from its own
-  replay, one Adam step per counted environment step, and the next round is collected by the policy they
-  left (:attr:`~swat_jax.td3.iteration.IterationConfig.round_updates`).
+- ``paper``: the paper's and the reference code's: one environment copy per task and the reference code's
+  training loop (:attr:`~swat_jax.td3.iteration.IterationConfig.loop` ``rounds``): lock-step rounds; when
+  a round ends, task after task takes (counted steps of the round summed over tasks) / tasks updates on
+  batches of 100 from its own replay, one Adam step per counted environment step, and the next round is
+  collected by the policy they left.
 - ``intended``: the ``paper`` preset with every quirk of the original code fixed (:func:`fixed`): the
-  paper's intended method on the original's schedule, updated after every chunk.
+  paper's intended method in the original's rounds, updated after every chunk (loop ``rounds_chunked``).
 - ``fast``: the recipe measured fastest to the original trainer's final return on a 2-core CPU
-  (docs/training.md): four copies per task and the ``all_tasks`` schedule (each update one Adam step on a
-  small batch from every task), 3-step returns, each body's rewards scaled by the spread of its returns,
+  (docs/training.md): four copies per task and the ``all_tasks`` loop (after every chunk, each update one
+  Adam step on a small batch from every task), 3-step returns, each body's rewards scaled by the spread of its returns,
   TD targets halfway between the twin target critics' minimum and mean, and the sizes and hyperparameters it
   was measured at (a width-32 one-layer network, learning rate 1e-3, 1,000 random steps and 50,000 replay
   rows per body).
@@ -44,9 +43,8 @@ from swat_jax.networks import NAMED_VARIANTS, NetworkConfig, StructureMismatch, 
 from swat_jax.networks.config import NETWORK_SIZES, NetworkSizes
 from swat_jax.networks.smp import most_children
 from swat_jax.runs import formats
-from swat_jax.td3.iteration import IterationConfig
+from swat_jax.td3.iteration import LOOPS, IterationConfig
 from swat_jax.td3.learner import TD3Config
-from swat_jax.td3.schedules import SCHEDULES
 
 Algorithm = Literal["swat", "amorpheus", "smp", "swat_no_pe", "swat_no_re", "swat_no_pe_re", "set"]
 Preset = Literal["paper", "intended", "fast"]
@@ -102,11 +100,11 @@ class TrainConfig:
     network: NetworkSizes = dataclasses.field(default_factory=NetworkSizes)
     """The sizes of --algo's networks and the traversal of its positional embedding."""
     iteration: IterationConfig = dataclasses.field(default_factory=IterationConfig)
-    """One jitted iteration: per-copy steps collected (chunk), updates and their schedule, random steps, noise, replay capacity."""
+    """One jitted iteration: the training loop, per-copy steps collected (chunk), updates, random steps, noise, replay capacity."""
     td3: TD3Config = dataclasses.field(default_factory=TD3Config)
     """TD3 hyperparameters (the paper's by default); batch_size is per body."""
     limb_buckets: int = 3
-    """With --iteration.schedule all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
+    """With --iteration.loop all_tasks: update tasks of similar size together at their own limb count, in at most this many groups (fewer FLOPs, a longer compile of the update; 1: every task padded to the largest body)."""
     log_interval: int = host_only(0)
     """Environment steps (all bodies) between metric rows (CSV, TensorBoard, progress bar); 0: a twentieth of --steps, at most 10,000 (20 points on a short run's curve, one per 10,000 steps on a long one)."""
     eval_interval: int = host_only(0)
@@ -170,18 +168,13 @@ class TrainConfig:
             raise ConfigError(f"--eval-interval must be 0 (off) or more, got {self.eval_interval}")
 
     def _check_iteration(self) -> None:
-        """The iteration's sizes, schedule, rounds, exploration noise and random steps (IterationConfig lives
-        below this layer and raises no ConfigError)."""
+        """The iteration's sizes, loop, exploration noise and random steps (IterationConfig lives below this
+        layer and raises no ConfigError)."""
         for name in ("chunk", "updates", "capacity"):
             require_positive(f"--iteration.{name}", getattr(self.iteration, name))
-        if self.iteration.schedule not in SCHEDULES:
+        if self.iteration.loop not in LOOPS:
             raise ConfigError(
-                f"--iteration.schedule must be one of {', '.join(SCHEDULES)}, got {self.iteration.schedule!r}"
-            )
-        if self.iteration.rounds and self.iteration.schedule != "original":
-            raise ConfigError(
-                "--iteration.rounds sets each body's updates from the counted steps, which only the original "
-                "schedule takes; add --iteration.schedule original or --iteration.no-rounds"
+                f"--iteration.loop must be one of {', '.join(LOOPS)}, got {self.iteration.loop!r}"
             )
         noise = (self.iteration.exploration_noise, self.iteration.exploration_noise_max)
         if min(value for value in noise if value is not None) < 0:
@@ -211,21 +204,21 @@ class TrainConfig:
                 )
 
     def _check_td3(self) -> None:
-        """The TD3 settings, and those that need a schedule or a network (TD3Config lives below this layer and
+        """The TD3 settings, and those that need a loop or a network (TD3Config lives below this layer and
         raises no ConfigError)."""
         require_positive("--td3.batch-size", self.td3.batch_size)
         require_positive("--td3.policy-delay", self.td3.policy_delay)
         require_positive("--td3.n-step", self.td3.n_step)
-        if self.td3.n_step > 1 and self.iteration.schedule != "all_tasks":
+        if self.td3.n_step > 1 and self.iteration.loop != "all_tasks":
             raise ConfigError(
                 f"--td3.n-step {self.td3.n_step} sums a copy's consecutive steps from its own replay rows, which "
-                "the original schedule's lock-step rounds do not keep; add --iteration.schedule all_tasks "
-                "--iteration.no-rounds or give --td3.n-step 1"
+                f"only the all_tasks loop keeps (--iteration.loop {self.iteration.loop}); add --iteration.loop "
+                "all_tasks or give --td3.n-step 1"
             )
-        if self.td3.reward_scaling and self.iteration.schedule != "all_tasks":
+        if self.td3.reward_scaling and self.iteration.loop != "all_tasks":
             raise ConfigError(
                 "--td3.reward-scaling scales each body's rewards in the all-task update's batch from every body; "
-                "add --iteration.schedule all_tasks --iteration.no-rounds or drop --td3.reward-scaling"
+                "add --iteration.loop all_tasks or drop --td3.reward-scaling"
             )
         if self.td3.atoms and (self.td3.atoms < 2 or self.algo in ("smp", "set")):
             raise ConfigError(
@@ -330,7 +323,10 @@ def fixed(config: TrainConfig) -> TrainConfig:
         envs=dataclasses.replace(config.envs, torso_relative_x=True, stale_kinematics=False),
         network=dataclasses.replace(config.network, reference_inorder=False),
         iteration=dataclasses.replace(
-            config.iteration, round_updates=False, reset_next_state=False, capacity_all=None
+            config.iteration,
+            loop="rounds_chunked" if config.iteration.loop == "rounds" else config.iteration.loop,
+            reset_next_state=False,
+            capacity_all=None,
         ),
     )
 
@@ -351,8 +347,7 @@ PRESETS: dict[str, TrainConfig] = {
             fixed(PAPER).iteration,
             chunk=16,
             updates=256,
-            schedule="all_tasks",
-            rounds=False,
+            loop="all_tasks",
             random_steps=1_000,
             capacity=50_000,
         ),

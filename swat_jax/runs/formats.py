@@ -16,7 +16,12 @@ the change it undoes. Each layout has a stored file in ``tests/data/formats/`` t
   no learning diagnostics before they existed. (Switches whose default kept the computation, such as
   ``td3.action_penalty`` = 0, need no reader: the field's default is the earlier value.)
 
-Version 2: ``format_version`` and the fields as :class:`~swat_jax.runs.config.TrainConfig` holds them.
+Version 2 (2026-12-07 to 2026-12-08): ``format_version`` and the fields as TrainConfig held them, the
+training loop in three fields of ``iteration`` (``rounds``, ``round_updates``, ``schedule``).
+
+Version 3: the training loop is one field, ``iteration.loop`` (rounds with round updates: ``rounds``,
+rounds without: ``rounds_chunked``, no rounds: the schedule's ``per_body`` or ``all_tasks``), and every other field as :class:`~swat_jax.runs.config.TrainConfig`
+holds it.
 
 A checkpoint's ``info``, version 1: before runs had a seed axis (refused: its state cannot be read into a
 run's), or before 3D bodies (no ``motors_per_limb``: 1, one motor per limb). Version 2: ``format_version``
@@ -29,7 +34,7 @@ from __future__ import annotations
 
 from typing import Any
 
-CONFIG_VERSION = 2
+CONFIG_VERSION = 3
 """The ``format_version`` of the config.json this swat_jax writes."""
 CHECKPOINT_VERSION = 2
 """The ``format_version`` of the checkpoint ``info`` this swat_jax writes."""
@@ -67,6 +72,10 @@ EARLIER_SWITCHES = {
 gives what a version-1 config.json without them computed and saved."""
 
 
+V2_LOOP_FIELDS = {"rounds": True, "round_updates": True, "schedule": "original"}
+"""Version 2's three fields of the training loop in ``iteration``, with the defaults it had."""
+
+
 class FormatError(ValueError):
     """A file of a layout this swat_jax cannot read; the message says why and what to do (the caller adds
     the file's name)."""
@@ -85,7 +94,9 @@ def current_config(fields: Any) -> Any:
         return fields
     version = _version(fields, CONFIG_VERSION)
     fields = {name: value for name, value in fields.items() if name != VERSION_KEY}
-    return _with_earlier_switches(_regrouped(fields)) if version == 1 else fields
+    if version == 1:
+        fields = _with_earlier_switches(_regrouped(fields))
+    return _with_one_loop(fields) if version < 3 else fields
 
 
 def current_checkpoint_info(data: dict[str, Any]) -> dict[str, Any]:
@@ -132,3 +143,64 @@ def _with_earlier_switches(fields: dict[str, Any]) -> dict[str, Any]:
         if isinstance(fields.get(group, {}), dict):
             fields[group] = {**switches, **fields.get(group, {})}
     return fields
+
+
+def _with_one_loop(fields: dict[str, Any]) -> dict[str, Any]:
+    """A version-2 layout's fields with its three loop fields (:data:`V2_LOOP_FIELDS`, each missing one at
+    its version-2 default) as the one ``iteration.loop`` of version 3."""
+    if not isinstance(fields.get("iteration", {}), dict):
+        return fields
+    iteration = dict(fields.get("iteration", {}))
+    rounds, round_updates, schedule = (
+        iteration.pop(name, default) for name, default in V2_LOOP_FIELDS.items()
+    )
+    return {**fields, "iteration": {**iteration, "loop": v2_loop(rounds, round_updates, schedule)}}
+
+
+def v2_loop(rounds: Any, round_updates: Any, schedule: Any) -> str:
+    """The training loop of version 2's ``rounds``, ``round_updates`` and ``schedule``: with rounds, rounds
+    (round updates) or rounds_chunked; without, the schedule's per_body (original) or all_tasks.
+    FormatError for a combination version 2 refused (rounds on the all_tasks schedule)."""
+    if rounds is True and schedule == "original":
+        return "rounds" if round_updates else "rounds_chunked"
+    if rounds is False and schedule in ("original", "all_tasks"):
+        return "per_body" if schedule == "original" else "all_tasks"
+    raise FormatError(
+        f"rounds {rounds!r} and schedule {schedule!r} are no training loop (rounds ran on the original "
+        "schedule alone); give --iteration.loop, one of rounds, rounds_chunked, per_body, all_tasks"
+    )
+
+
+OLD_LOOP_FLAGS = {
+    "--iteration.rounds": ("rounds", True),
+    "--iteration.no-rounds": ("rounds", False),
+    "--iteration.round-updates": ("round_updates", True),
+    "--iteration.no-round-updates": ("round_updates", False),
+}
+"""The switches of the training loop before ``--iteration.loop`` (with ``--iteration.schedule NAME``), read
+for one release: the field of :data:`V2_LOOP_FIELDS` each sets, and to what."""
+
+
+def with_loop_flag(argv: list[str], loop: str) -> tuple[list[str], str | None]:
+    """``argv`` with the old loop flags (:data:`OLD_LOOP_FLAGS`, ``--iteration.schedule``) replaced by the
+    ``--iteration.loop`` they give, applied to the defaults' ``loop``, and the line that says so (None
+    without them); FormatError for a combination that is no loop."""
+    given = {"rounds": loop in ("rounds", "rounds_chunked"), "round_updates": loop == "rounds"}
+    given["schedule"] = "all_tasks" if loop == "all_tasks" else "original"
+    kept, old, arguments = [], [], iter(argv)
+    for argument in arguments:
+        name, _, value = argument.partition("=")
+        if argument in OLD_LOOP_FLAGS:
+            field, given[field] = OLD_LOOP_FLAGS[argument]
+        elif name == "--iteration.schedule":
+            given["schedule"] = value or next(arguments, "")
+        else:
+            kept.append(argument)
+            continue
+        old.append(name)
+    if not old:
+        return argv, None
+    new = v2_loop(given["rounds"], given["round_updates"], given["schedule"])
+    return [*kept, "--iteration.loop", new], (
+        f"{', '.join(old)}: old names, read for one release; give --iteration.loop {new} instead"
+    )

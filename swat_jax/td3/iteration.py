@@ -16,7 +16,7 @@ follows the paper: uniform random actions for each task's first ``random_steps``
 plus Gaussian noise (std ``exploration_noise``, or one per copy: :func:`exploration_scales`), clipped to
 [-1, 1]. Updates start once every task's buffer holds a full batch.
 
-With the original's lock-step rounds and their updates (:attr:`IterationConfig.round_updates`, the paper
+With the original's training loop (:attr:`IterationConfig.loop` rounds, the paper
 preset), a seed updates only when its round ends, after the chunk in which it ended; from that step to the
 chunk's end it waits (its environments keep their state, it stores and counts nothing), so the policy that
 collects a round is the one the previous round's updates left, as in the original's training loop.
@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import typing
 from collections.abc import Callable
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -47,6 +49,9 @@ from swat_jax.td3.replay import ReplayBuffer, Transitions, init_buffer, insert
 from swat_jax.td3.reward_scaling import discounted_returns
 from swat_jax.td3.schedules import Schedule, make_update_phase
 
+Loop = Literal["rounds", "rounds_chunked", "per_body", "all_tasks"]
+"""The training loops (:attr:`IterationConfig.loop`)."""
+LOOPS: tuple[str, ...] = typing.get_args(Loop)
 Collected = tuple[jax.Array, jax.Array | None, jax.Array, jax.Array | None, Acted | None]
 """What one collection step gives the iteration: rewards [S, K, n], the observations acted on (with
 observation normalisation), [S] bool the seeds that stepped, the discounted returns after the step
@@ -71,7 +76,7 @@ class TrainState:
     lock-step rounds (:attr:`IterationConfig.rounds`) only the steps the original code counts."""
     round_start: jax.Array | None = None
     """[S] int32 the counted steps when each seed's current round began, with
-    :attr:`IterationConfig.round_updates` (None without)."""
+    :attr:`IterationConfig.loop` rounds (None with another loop)."""
     discounted_return: jax.Array | None = axes.field(task=0, copy=1, default=None)
     """[S, K, n] each copy's discounted return of its episode so far, with reward scaling
     (:attr:`~swat_jax.td3.TD3Config.reward_scaling`; None without)."""
@@ -87,19 +92,15 @@ class IterationConfig:
     chunk: int = 100
     """Environment steps per copy collected per iteration."""
     updates: int = 100
-    """TD3 updates per iteration: per body with the original schedule (chunk x copies of them give one Adam step per environment step, as the reference code), in all with all_tasks. With rounds, the counted steps set them instead."""
-    rounds: bool = True
-    """The original code's lock-step rounds (on by default, as every default here is the paper's; needs the original schedule): a round lasts until every copy has ended its first episode of the round, then all copies restart; only the steps of those first episodes count, and each body takes (counted steps summed over bodies) / bodies updates, so the copies that ended early store more transitions than are updated on. The random phase then lasts random_steps x bodies counted steps, as the original's."""
-    schedule: Schedule = "original"
-    """Update order after collecting. original (the reference code's): body after body, each takes its updates on batches from its own replay alone, one Adam step each, with the delayed actor step in the first of every policy_delay of them. all_tasks: each update is one Adam step on the mean loss over a batch from every body."""
+    """TD3 updates per iteration with the chunked loops: per body with per_body, in all with all_tasks. The rounds loops set them from the counted steps instead."""
+    loop: Loop = "rounds"
+    """The training loop (on rounds by default, as every default here is the paper's). rounds (the original code's, the paper preset): lock-step rounds, each lasting until every copy has ended its first episode of the round, then all copies restart; only the steps of those first episodes count. When a seed's round ends, each body takes (counted steps of the round summed over bodies) / bodies updates on batches from its own replay, so the policy acting in a round is the one its previous round trained; a seed whose round ends inside a chunk waits, storing nothing, for the chunk's end. The random phase lasts random_steps x bodies counted steps, as the original's. rounds_chunked (the intended preset): the same rounds, counts and random phase, the updates after every chunk (the counted steps' remainder carried to the next). per_body: every step counts; after every chunk, body after body, each takes `updates` updates on batches from its own replay, one Adam step each, the delayed actor step in the first of every policy_delay of them. all_tasks (the fast preset): every step counts; after every chunk, `updates` updates, each one Adam step on the mean loss over a batch from every body."""
     random_steps: int = 10_000
     """Per task: steps with uniform random actions before the policy acts."""
     exploration_noise: float = 0.126
     """Std of the Gaussian noise added to the policy's actions (of the first copy, with exploration_noise_max)."""
     exploration_noise_max: float | None = None
     """With it, each copy of a body explores with its own noise std, spread evenly from exploration_noise (the first copy) to this (the last), so one run explores both near its policy and far from it (FastTD3's noise drawn per environment, Seo et al. 2025); None: every copy exploration_noise."""
-    round_updates: bool = True
-    """With rounds (ignored without), the original's training loop: a seed's updates run when its round ends (each body (counted steps of the round summed over bodies) / bodies of them, without waiting for a full batch), so the policy acting in a round is the one its previous round trained; a seed whose round ends inside a chunk waits, storing nothing, for the chunk's end. False: the updates run after every chunk (the counted steps' remainder carried to the next), as swat_jax's presets before the original's rounds were reproduced."""
     reset_next_state: bool = True
     """Store a transition that hits the time limit with the observation of the episode that starts next as its next state, bootstrapped from it, as the original does (its vectorised environment has already reset the copy); False: the observation the step reached."""
     capacity: int = 500_000
@@ -108,6 +109,22 @@ class IterationConfig:
     """Gather the learning diagnostics in collection (:mod:`swat_jax.td3.diagnostics`: the critics' estimate of each episode's start against its return, the twin critics' disagreement, saturated actions, the exploration noise applied, each body's updates), the diag/* columns of metrics.csv. They read the run and change nothing in it."""
     capacity_all: int | None = 4_000_000
     """Replay rows summed over tasks at most (the original's rb_max): a set of more tasks than capacity_all / capacity gets capacity_all / K rows per task (Cheetah++: 333,333); None: capacity rows per task whatever K."""
+
+    @property
+    def rounds(self) -> bool:
+        """The copies run in the original code's lock-step rounds, and only its steps count (the rounds loops)."""
+        return self.loop in ("rounds", "rounds_chunked")
+
+    @property
+    def waits(self) -> bool:
+        """A seed's updates wait for the end of its lock-step round (the rounds loop)."""
+        return self.loop == "rounds"
+
+    @property
+    def schedule(self) -> Schedule:
+        """The order of the updates after collecting (:mod:`swat_jax.td3.schedules`): all_tasks for the
+        all_tasks loop, else original (body after body, each on its own replay)."""
+        return "all_tasks" if self.loop == "all_tasks" else "original"
 
     def rows_per_task(self, num_tasks: int) -> int:
         """The replay rows of each of ``num_tasks`` tasks' rings (:attr:`capacity`, :attr:`capacity_all`)."""
@@ -147,7 +164,7 @@ def init_train_state(
         rng=rng,
         steps_per_task=jnp.zeros((), jnp.int32),
         counted=jnp.zeros(rngs.shape[:1], jnp.int32),
-        round_start=jnp.zeros(rngs.shape[:1], jnp.int32) if waits_for_rounds(config) else None,
+        round_start=jnp.zeros(rngs.shape[:1], jnp.int32) if config.waits else None,
         discounted_return=(
             jnp.zeros((rngs.shape[0], env.num_bodies, env.copies), jnp.float32)
             if learner.config.reward_scaling
@@ -157,11 +174,6 @@ def init_train_state(
             EpisodeValues.fresh((rngs.shape[0], env.num_bodies, env.copies)) if config.diagnostics else None
         ),
     )
-
-
-def waits_for_rounds(config: IterationConfig) -> bool:
-    """Whether a seed's updates wait for the end of its lock-step round (:attr:`IterationConfig.round_updates`)."""
-    return config.rounds and config.round_updates
 
 
 def seed_keys(first_seed: int, seeds: int) -> jax.Array:
@@ -201,11 +213,6 @@ class Collection:
         explore = make_exploration(learner, structure, exploration_scales(config, env.copies))
         return cls(env, structure, learner, config, explore)
 
-    @property
-    def waits(self) -> bool:
-        """A seed's updates wait for the end of its lock-step round (:func:`waits_for_rounds`)."""
-        return waits_for_rounds(self.config)
-
     def random_phase(self, state: TrainState) -> jax.Array:
         """[] bool, shared by the seeds: every task has taken fewer than ``random_steps`` steps; with rounds
         [S], per seed: fewer than ``random_steps`` x tasks steps counted (the original's rule)."""
@@ -230,14 +237,16 @@ class Collection:
         counted = jnp.sum(result.counted, axis=(-2, -1), dtype=jnp.int32)
         returns, running = self.discounted_returns(state, result, stepping)
         acted = self.acted(state, policy, action, result) if self.config.diagnostics else None
-        if self.waits:
+        if self.config.waits:
             env_state = self.env.where_seeds(stepping, env_state, state.env)
             counted = jnp.where(stepping, counted, 0)
             waiting = waiting | result.round_over
         buffer_axes = axes.seed_axes(state.buffer)
-        inserted = seeds(insert, in_axes=(buffer_axes, 0, 0 if self.waits else None), out_axes=buffer_axes)
+        inserted = seeds(
+            insert, in_axes=(buffer_axes, 0, 0 if self.config.waits else None), out_axes=buffer_axes
+        )
         next_state = state.replace(
-            buffer=inserted(state.buffer, transitions, stepping if self.waits else None),
+            buffer=inserted(state.buffer, transitions, stepping if self.config.waits else None),
             env=env_state,
             rng=rng,
             steps_per_task=state.steps_per_task + self.env.copies,
@@ -317,7 +326,7 @@ class Collection:
         state = state.replace(
             env=state.env.replace(episodes=EpisodeStats.zeros(self.env.num_bodies, (seeds,)))
         )
-        step = self.step_or_wait if self.waits else self.step
+        step = self.step_or_wait if self.config.waits else self.step
         return jax.lax.scan(step, (state, jnp.zeros(seeds, bool)), None, length=self.config.chunk)
 
 
@@ -339,7 +348,7 @@ class TrainIteration:
     ) -> TrainIteration:
         """The iteration of ``env``'s tasks (structure ``structure``) by ``learner``, sized by ``config``."""
         collection = Collection.build(env, structure, learner, config)
-        longest = env.longest_episode if collection.waits else config.chunk
+        longest = env.longest_episode if collection.config.waits else config.chunk
         motor_mask = collection.structure.motor_mask
         motors = jnp.expand_dims(motor_mask if env.motors_per_limb > 1 else motor_mask[..., 0], 1)
         return cls(collection, longest * env.copies if config.rounds else config.updates, motors)
@@ -409,10 +418,10 @@ class TrainIteration:
             self.slots,
             state.rng.shape[0],
             config.rounds,
-            not collection.waits,
+            not collection.config.waits,
             collection.env.copies,
         )
-        if collection.waits:
+        if collection.config.waits:
             counts, round_start = round_update_counts(state.counted, state.round_start, round_over, num_tasks)
             state = state.replace(round_start=round_start)
         elif config.rounds:
