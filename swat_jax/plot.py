@@ -32,6 +32,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import EngFormatter
 from sklearn.manifold import TSNE
 
 from swat_jax.cli import run_command
@@ -202,6 +203,7 @@ def curves_figure(points: Sequence[CurvePoint], metric: str) -> Figure:
                 draw_band(axes, line, algorithm, colours[algorithm])
         axes.set_title(panel)
         axes.set_xlabel("environment steps")
+        axes.xaxis.set_major_formatter(EngFormatter(sep=""))  # 150k, not 150000: six digits a tick overlap
         axes.set_ylabel(label)
         axes.legend()
     figure.tight_layout()

@@ -13,6 +13,8 @@ from matplotlib.legend import Legend
 
 from swat_jax.morphology import load, relation_features
 from swat_jax.plot import (
+    CurvePoint,
+    curves_figure,
     embeddings_figure,
     main,
     plot_curves,
@@ -98,6 +100,14 @@ def test_curves_pool_seeds_per_algorithm_and_set_with_a_panel_per_set(tmp_path):
     assert_csv_point(point["hopper", "swat", 200], [2, 22])
     assert_csv_point(point["hopper", "amorpheus", 300], [1003, 1013])
     assert_csv_point(point["walker", "swat", 200], [2])
+
+
+def test_curves_label_their_step_ticks_in_thousands_so_that_six_digits_do_not_overlap():
+    points = [CurvePoint("3D Hopper++", "swat", steps, 100.0, 1.0, 2) for steps in range(0, 160_000, 10_000)]
+    axes = curves_figure(points, "train").axes[0]
+    axes.figure.canvas.draw()
+    labels = [label.get_text() for label in axes.get_xticklabels() if label.get_text()]
+    assert "150k" in labels and all(len(label) <= 4 for label in labels), labels
 
 
 def test_per_body_curves_add_a_panel_per_body(tmp_path):
